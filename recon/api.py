@@ -1,0 +1,156 @@
+"""The Python API: everything the ``recon`` command does, as functions.
+
+    import recon
+    result = recon.run("pipelines/sparse.yaml", images="photos/", workspace="out/",
+                       overrides={"features.max_image_size": 2000})
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any
+
+from recon import pipeline
+from recon.config import ConfigError
+from recon.workspace import CACHE_DIR, Workspace, WorkspaceError, read_json, write_json
+
+log = logging.getLogger("recon")
+_last_log: list[Path] = []
+
+REPO = Path(__file__).resolve().parents[1]
+DEMO_CONFIG = REPO / "pipelines" / "demo.yaml"
+
+
+def load(config: str | Path | dict | None, overrides: list[str] | dict | None = None, *,
+         images: str | None = None, workspace: str | None = None) -> pipeline.RunConfig:
+    """Read and validate a config; ``images``/``workspace`` replace the config's (paths from the cwd)."""
+    cfg = pipeline.load_config(config, overrides)
+    if images is not None or workspace is not None:
+        from dataclasses import replace
+
+        run = replace(cfg.run,
+                      images=str(Path(images).absolute()) if images is not None else cfg.run.images,
+                      workspace=str(Path(workspace).absolute()) if workspace is not None else cfg.run.workspace)
+        cfg = pipeline.RunConfig(run, cfg.stages, cfg.base)
+    return cfg
+
+
+def run(config: str | Path | dict | None = None, *, images: str | None = None, workspace: str | None = None,
+        overrides: list[str] | dict | None = None, from_stage: str | None = None, until: str | None = None,
+        force: list[str] | tuple[str, ...] = (), **section_overrides: Any) -> pipeline.RunResult:
+    """Run a pipeline. Keyword sections override config sections, e.g. ``features={"max_image_size": 1000}``."""
+    merged: dict = dict(overrides) if isinstance(overrides, dict) else {}
+    extra = list(overrides) if isinstance(overrides, list) else []
+    for section, values in section_overrides.items():
+        if isinstance(values, dict):
+            merged.update({f"{section}.{k}": v for k, v in values.items()})
+        else:
+            merged[section] = values
+    cfg = load(config, extra, images=images, workspace=workspace)
+    if merged:
+        cfg = load(config, [*extra, *[f"{k}={_yaml(v)}" for k, v in merged.items()]], images=images,
+                   workspace=workspace)
+    ws = Workspace(cfg.workspace)
+    ws.create()
+    _last_log[:] = [ws.meta / "recon.log"]
+    from recon.logs import quiet_colmap
+
+    quiet_colmap(ws.meta / "logs" / "colmap.")
+    result = pipeline.run(cfg, from_stage=from_stage, until=until, force=force)
+    write_json(ws.meta / "config.json", {"base": str(cfg.base), "config": cfg.as_dict()})
+    return result
+
+
+def _yaml(value: Any) -> str:
+    import yaml
+
+    return yaml.safe_dump(value, default_flow_style=True).strip().removesuffix("...").strip()
+
+
+def _config_for(target: str | Path | dict, overrides=None, images=None, workspace=None) -> pipeline.RunConfig:
+    if isinstance(target, dict):
+        return load(target, overrides, images=images, workspace=workspace)
+    path = Path(target)
+    if path.is_dir():
+        snapshot = read_json(path / CACHE_DIR / "config.json")
+        if snapshot is None:
+            raise WorkspaceError(f"{path}: not a recon workspace (no {CACHE_DIR}/config.json); pass the config file")
+        data = snapshot["config"]
+        data["workspace"] = str(path.absolute())
+        cfg = load(data, overrides, images=images)
+        return pipeline.RunConfig(cfg.run, cfg.stages, Path(snapshot["base"]))
+    return load(path, overrides, images=images, workspace=workspace)
+
+
+def status(target: str | Path | dict, overrides=None, images=None, workspace=None) -> list[pipeline.StageStatus]:
+    return pipeline.status(_config_for(target, overrides, images, workspace))
+
+
+def clean(target: str | Path, everything: bool = False, workspace: str | None = None) -> tuple[int, int]:
+    path = Path(target)
+    if path.is_dir():
+        cfg = _config_for(path) if (path / CACHE_DIR / "config.json").exists() else None
+        return pipeline.clean(cfg, path, everything)
+    cfg = _config_for(path, workspace=workspace)
+    return pipeline.clean(cfg, cfg.workspace, everything)
+
+
+def last_log_file() -> Path | None:
+    return _last_log[0] if _last_log else None
+
+
+# ---------------------------------------------------------------------------------------------
+# Evaluation, synthetic scenes, demo
+
+
+def evaluate(workspace: str | Path, gt: str | Path) -> dict:
+    """Pose figures of ``<workspace>/sparse/0`` against ground-truth cameras."""
+    import pycolmap
+
+    from recon.eval.groundtruth import load_cameras
+    from recon.eval.poses import pose_metrics
+
+    ws = Path(workspace)
+    model = ws / "sparse" / "0"
+    if not (model / "images.bin").exists() and not (model / "images.txt").exists():
+        raise WorkspaceError(f"{ws}: no sparse model at sparse/0; run the pipeline first")
+    gt_cams = load_cameras(Path(gt))
+    rec = pycolmap.Reconstruction(str(model))
+    by_base = {Path(n).name: n for n in gt_cams}
+    est = {}
+    for image in rec.images.values():
+        if image.has_pose:
+            key = by_base.get(Path(image.name).name)
+            if key is not None:
+                pose = image.cam_from_world()
+                est[key] = (pose.rotation.matrix(), pose.translation)
+    if not est:
+        raise ConfigError(f"--gt {gt}: no image of the model has a ground-truth camera there (names differ?)")
+    return {"poses": pose_metrics(est, gt_cams)}
+
+
+def format_eval(figures: dict) -> str:
+    lines = []
+    p = figures.get("poses")
+    if p:
+        lines.append(f"registered {p['registered']}/{p['total']}   AUC@1/3/5 {p['auc@1']:.1f} / {p['auc@3']:.1f} / "
+                     f"{p['auc@5']:.1f}   median camera-centre error {p['median_center_error']:.4g}")
+    return "\n".join(lines)
+
+
+def synth(out: str | Path, **kwargs) -> Path:
+    from recon.synth import render_scene
+
+    render_scene(Path(out), **kwargs)
+    return Path(out)
+
+
+def demo(workspace: str | Path = "demo_workspace", config: str | Path | None = None) -> dict:
+    """Render the demo scene when absent, run the demo pipeline on it, evaluate against its ground truth."""
+    scene = Path(workspace).absolute().parent / "demo_scene"
+    if not (scene / "gt" / "scene.json").exists():
+        log.info("demo: rendering the synthetic demo scene into %s", scene)
+        synth(scene, views=24, width=640, height=480, seed=0)
+    run(config or DEMO_CONFIG, images=str(scene / "images"), workspace=str(workspace))
+    return evaluate(workspace, scene)

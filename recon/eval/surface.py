@@ -1,0 +1,167 @@
+"""Surface accuracy, completeness and F-score of a reconstruction against a synthetic scene.
+
+Thresholds are fractions of the scene's ``extent`` (see recon.synth.dataset: the diagonal of the
+bounding box of the surface the regular views see); results are percentages.
+
+- Accuracy@tau: share of reconstructed points (or of uniform samples of a reconstructed mesh, about
+  three per threshold length) whose distance to the ground-truth mesh is <= tau (exact point-to-
+  triangle distance, open3d ``RaycastingScene.compute_distance``).
+- Completeness@tau: share of the OBSERVABLE ground-truth surface within tau of the reconstruction.
+  The observable surface is the union of the points back-projected from the ground-truth depth maps
+  of the regular (input) views, thinned to one point per voxel of half the smallest threshold, so
+  every area counts alike and ground no camera sees does not count. Distance to a reconstructed mesh
+  is exact; to a point cloud it is the nearest-point distance (scipy cKDTree), searched only up to
+  the largest threshold (farther counts as infinite, so ``completeness_median`` is inf when more
+  than half of the observable surface is farther than that).
+- F-score@tau: harmonic mean of the two (0 when both are 0).
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from recon._open3d import open3d
+from recon.geometry.transforms import backproject
+from recon.synth.dataset import SceneInfo
+
+log = logging.getLogger(__name__)
+
+THRESHOLDS = (0.002, 0.005)
+MAX_MESH_SAMPLES = 3_000_000
+
+
+def surface_metrics(points_or_mesh, scene: SceneInfo, thresholds=THRESHOLDS, seed: int = 0) -> dict:
+    """Accuracy, completeness and F-score (percent) of a reconstruction against ``scene``.
+
+    ``points_or_mesh``: an (N, 3) array, a trimesh mesh or point cloud, an open3d (legacy or tensor)
+    point cloud or triangle mesh, or the path of a ``.ply``/``.obj``/... file. Keys: ``accuracy@tau``,
+    ``completeness@tau``, ``fscore@tau`` and ``threshold@tau`` (absolute) for each ``tau``, plus
+    ``accuracy_median`` / ``completeness_median`` (absolute distances), ``n_points``, ``n_gt_samples``
+    and ``extent``.
+    """
+    start = time.perf_counter()
+    thresholds = tuple(float(t) for t in thresholds)
+    extent = scene.extent
+    spacing = min(thresholds) * extent / 2
+    verts, faces = _as_geometry(points_or_mesh)
+    points = verts if faces is None else sample_mesh(verts, faces, spacing * 2 / 3, seed)
+
+    acc_dist = _gt_distance(str(scene.mesh_path), scene.mesh_path.stat().st_mtime_ns)(points)
+    gt_pts = observed_points(scene, spacing)
+    if faces is None:
+        # bounded: unbounded nearest-neighbour queries far from a thin (planar) cloud take minutes
+        bound = max(thresholds) * extent
+        comp_dist = cKDTree(points).query(gt_pts, workers=-1, distance_upper_bound=bound)[0] \
+            if len(points) else np.full(len(gt_pts), np.inf)
+    else:
+        comp_dist = _mesh_distance(verts, faces)(gt_pts)
+
+    out = {"extent": extent, "n_points": len(points), "n_gt_samples": len(gt_pts),
+           "accuracy_median": float(np.median(acc_dist)) if len(acc_dist) else float("inf"),
+           "completeness_median": float(np.median(comp_dist))}
+    for tau in thresholds:
+        limit = tau * extent
+        acc = 100.0 * float(np.mean(acc_dist <= limit)) if len(acc_dist) else 0.0
+        comp = 100.0 * float(np.mean(comp_dist <= limit))
+        out[f"threshold@{tau:g}"] = limit
+        out[f"accuracy@{tau:g}"] = acc
+        out[f"completeness@{tau:g}"] = comp
+        out[f"fscore@{tau:g}"] = 2 * acc * comp / (acc + comp) if acc + comp > 0 else 0.0
+    log.info("surface metrics of %d points vs %d ground-truth samples in %.2f s", len(points), len(gt_pts),
+             time.perf_counter() - start)
+    return out
+
+
+def observed_points(scene: SceneInfo, spacing: float) -> np.ndarray:
+    """The observable ground-truth surface: points back-projected from the regular views' depth maps,
+    one per voxel of side ``spacing`` (M, 3). Cached per scene and spacing."""
+    stamp = scene.cameras_path.stat().st_mtime_ns
+    return _observed_points(str(scene.root), float(spacing), stamp)
+
+
+@functools.lru_cache(maxsize=4)
+def _observed_points(root: str, spacing: float, _stamp: int) -> np.ndarray:
+    from recon.synth.dataset import load_scene
+
+    scene = load_scene(root)
+    chunks = []
+    for name, cam in scene.cameras().items():
+        depth = scene.depth(name)
+        v, u = np.nonzero(depth > 0)
+        chunks.append(backproject(cam.K, cam.R, cam.t, np.column_stack([u + 0.5, v + 0.5]), depth[v, u]))
+    pts = np.concatenate(chunks)
+    keys = np.floor(pts / spacing).astype(np.int64)  # voxel grid anchored at the world origin
+    keys -= keys.min(0)
+    dims = keys.max(0) + 1
+    flat = (keys[:, 0] * dims[1] + keys[:, 1]) * dims[2] + keys[:, 2]
+    _, first = np.unique(flat, return_index=True)
+    return pts[first]
+
+
+def sample_mesh(vertices: np.ndarray, faces: np.ndarray, spacing: float, seed: int = 0) -> np.ndarray:
+    """Points spread uniformly over a triangle mesh's area, about one per ``spacing``^2 (between
+    1000 and MAX_MESH_SAMPLES)."""
+    tri = np.asarray(vertices, dtype=float)[np.asarray(faces)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    total = area.sum()
+    if total <= 0:
+        return np.zeros((0, 3))
+    n = int(np.clip(total / spacing**2, 1000, MAX_MESH_SAMPLES))
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(len(tri), size=n, p=area / total)
+    r1, r2 = rng.random(n), rng.random(n)
+    s = np.sqrt(r1)
+    w = np.column_stack([1 - s, s * (1 - r2), s * r2])
+    return np.einsum("nk,nkd->nd", w, tri[idx])
+
+
+def _mesh_distance(vertices: np.ndarray, faces: np.ndarray):
+    o3d = open3d()
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)), o3d.core.Tensor(np.asarray(faces, np.uint32)))
+
+    def distance(points: np.ndarray) -> np.ndarray:
+        if len(points) == 0:
+            return np.zeros(0)
+        return rc.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy().astype(np.float64)
+
+    return distance
+
+
+@functools.lru_cache(maxsize=4)
+def _gt_distance(mesh_path: str, _stamp: int):
+    import trimesh
+
+    mesh = trimesh.load(mesh_path, process=False, force="mesh")
+    return _mesh_distance(mesh.vertices, mesh.faces)
+
+
+def _as_geometry(obj) -> tuple[np.ndarray, np.ndarray | None]:
+    """(vertices, faces or None) of any supported point cloud / mesh input."""
+    if isinstance(obj, (str, Path)):
+        import trimesh
+
+        obj = trimesh.load(str(obj), process=False)
+    if isinstance(obj, np.ndarray):
+        return np.asarray(obj, dtype=float).reshape(-1, 3), None
+    cls = type(obj).__module__ + "." + type(obj).__name__
+    if cls.startswith("trimesh"):
+        faces = getattr(obj, "faces", None)
+        if faces is not None and len(faces):
+            return np.asarray(obj.vertices, float), np.asarray(faces)
+        return np.asarray(obj.vertices, float), None
+    if cls.startswith("open3d"):
+        if hasattr(obj, "to_legacy"):
+            obj = obj.to_legacy()
+        if hasattr(obj, "triangles") and len(obj.triangles):
+            return np.asarray(obj.vertices, float), np.asarray(obj.triangles)
+        if hasattr(obj, "points"):
+            return np.asarray(obj.points, float), None
+        return np.asarray(obj.vertices, float), None
+    raise TypeError(f"cannot evaluate a {type(obj).__name__}: give points (N, 3), a mesh or a file path")

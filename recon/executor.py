@@ -1,0 +1,94 @@
+"""Where per-image and per-pair work runs: a local process pool by default, a Dask cluster on request.
+
+Both are ``concurrent.futures.Executor``s (Dask's through ``Client.get_executor``), so stages submit
+work one way whatever runs it (DESIGN.md, "Parallel and distributed"). The executor is created
+lazily: a run whose stages are all cached starts no worker.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import multiprocessing
+import os
+import re
+
+from recon.config import ConfigError
+
+_SPEC = re.compile(r"^(local|serial|processes:(\d+)|dask-local:(\d+)|dask://\S+|tcp://\S+)$")
+
+
+def check_spec(spec: str) -> str:
+    if not _SPEC.match(spec):
+        raise ConfigError(f"executor: '{spec}' is not one of local | serial | processes:N | "
+                          "dask://host:port | dask-local:N")
+    return spec
+
+
+class Executor:
+    """A lazily started ``concurrent.futures`` executor for a run."""
+
+    def __init__(self, spec: str = "local"):
+        self.spec = check_spec(spec)
+        self._pool: cf.Executor | None = None
+        self._cluster = None
+        self._client = None
+
+    @property
+    def workers(self) -> int:
+        m = re.match(r"(processes|dask-local):(\d+)", self.spec)
+        if m:
+            return max(1, int(m.group(2)))
+        if self.spec == "serial":
+            return 1
+        if self.spec == "local":
+            return max(1, len(os.sched_getaffinity(0)))
+        _ = self.pool  # a remote cluster's size is known once connected
+        return max(1, sum(self._client.nthreads().values()))
+
+    @property
+    def pool(self) -> cf.Executor:
+        if self._pool is None:
+            self._pool = self._start()
+        return self._pool
+
+    def _start(self) -> cf.Executor:
+        if self.spec == "serial":
+            return _SerialExecutor()
+        if self.spec == "local" or self.spec.startswith("processes:"):
+            # forkserver: workers start from a clean process, so threads the parent may hold
+            # (BLAS, COLMAP's thread pools) cannot deadlock a forked child.
+            ctx = multiprocessing.get_context("forkserver")
+            return cf.ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx)
+        from dask.distributed import Client, LocalCluster
+
+        if self.spec.startswith("dask-local:"):
+            self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1,
+                                         processes=True, dashboard_address=None)
+            self._client = Client(self._cluster)
+        else:
+            address = self.spec.replace("dask://", "tcp://", 1)
+            self._client = Client(address, timeout="20s")
+        return self._client.get_executor(pure=False)
+
+    def shutdown(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
+
+
+class _SerialExecutor(cf.Executor):
+    """Runs each task in the calling process (debugging, and tiny inputs)."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        future: cf.Future = cf.Future()
+        try:
+            future.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # delivered through the future like a pool would
+            future.set_exception(exc)
+        return future

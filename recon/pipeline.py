@@ -1,0 +1,353 @@
+"""Resolve which stages run, check the cache, run them.
+
+The cache key of a stage is the SHA-256 of canonical JSON holding its name and version, its config,
+the keys of the stages it reads from, the run's seed where the stage samples, and (ingest) the
+content hashes of the input files. A stage whose key is complete on disk is skipped; change one
+option and exactly that stage and the stages after it run again (DESIGN.md, "A stage").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import platform
+import shutil
+import time
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from recon import stages as _stages  # noqa: F401  (registers every stage)
+from recon.config import ConfigError, RunOptions, apply_overrides, build, read_yaml, to_dict
+from recon.executor import Executor, check_spec
+from recon.options import output_options
+from recon.stage import REGISTRY, StageContext
+from recon.workspace import HashCache, Workspace, WorkspaceError
+
+log = logging.getLogger("recon")
+
+
+@dataclass
+class RunConfig:
+    """A validated run: the run's own options and one config per stage."""
+
+    run: RunOptions
+    stages: dict[str, Any]
+    base: Path = field(default=Path("."))  # folder that relative paths are resolved against
+
+    @property
+    def images(self) -> Path | None:
+        return (self.base / self.run.images).resolve() if self.run.images else None
+
+    @property
+    def workspace(self) -> Path:
+        if not self.run.workspace:
+            raise ConfigError("workspace: no workspace given; set `workspace:` in the config or pass --workspace")
+        return (self.base / self.run.workspace).resolve()
+
+    def as_dict(self) -> dict:
+        data = to_dict(self.run)
+        data.update({name: to_dict(cfg) for name, cfg in self.stages.items()})
+        return data
+
+
+def load_config(source: str | Path | dict | None = None, overrides: list[str] | dict | None = None) -> RunConfig:
+    """Read a YAML file (or take a dict), apply overrides, validate everything."""
+    if isinstance(source, dict):
+        data, base = source, Path.cwd()
+    elif source is None:
+        data, base = {}, Path.cwd()
+    else:
+        path = Path(source)
+        data, base = read_yaml(path), path.absolute().parent
+    data = apply_overrides(data, overrides or [])
+    run_keys = {f.name for f in dataclasses.fields(RunOptions)}
+    run = build(RunOptions, {k: v for k, v in data.items() if k in run_keys})
+    sections = {}
+    for key, value in data.items():
+        if key in run_keys:
+            continue
+        if key not in REGISTRY:
+            from recon.config import _unknown_key_message
+
+            raise ConfigError(_unknown_key_message(key, key, sorted(run_keys | set(REGISTRY))))
+        sections[key] = value
+    stage_cfgs = {name: build(stage.Config, sections.get(name), name) for name, stage in REGISTRY.items()}
+    for name in [*run.stages, run.until]:
+        if name not in REGISTRY:
+            raise ConfigError(f"stages: unknown stage '{name}'; stages are {', '.join(REGISTRY)}")
+    check_spec(run.executor)
+    return RunConfig(run, stage_cfgs, base)
+
+
+# ---------------------------------------------------------------------------------------------
+# Planning
+
+
+def selected_stages(cfg: RunConfig) -> list[str]:
+    """Stages of this run in pipeline order: the listed ones (or all up to `until`) and what they need."""
+    order = list(REGISTRY)
+    wanted = set(cfg.run.stages) if cfg.run.stages else set(order[: order.index(cfg.run.until) + 1])
+    stack = list(wanted)
+    while stack:
+        for dep in REGISTRY[stack.pop()].requires:
+            if dep not in wanted:
+                wanted.add(dep)
+                stack.append(dep)
+    return [name for name in order if name in wanted]
+
+
+@dataclass
+class Plan:
+    """The key and key material of each stage of a run."""
+
+    order: list[str]
+    keys: dict[str, str]
+    material: dict[str, dict]
+
+
+def plan(cfg: RunConfig, ws: Workspace) -> Plan:
+    hashes = HashCache(ws)
+    keys: dict[str, str] = {}
+    material: dict[str, dict] = {}
+    order = selected_stages(cfg)
+    for name in order:
+        stage = REGISTRY[name]
+        probe = StageContext(name=name, out=Path(), workspace=ws, images=cfg.images, seed=cfg.run.seed,
+                             executor=None, config={"hashes": hashes})  # type: ignore[arg-type]
+        mat = {
+            "stage": name,
+            "version": stage.version,
+            "config": to_dict(output_options(cfg.stages[name])),
+            "upstream": {dep: keys[dep] for dep in stage.requires},
+            "seed": cfg.run.seed if stage.uses_seed else None,
+            "fingerprint": stage.fingerprint(probe, cfg.stages[name]),
+        }
+        material[name] = mat
+        keys[name] = hashlib.sha256(json.dumps(mat, sort_keys=True, default=str).encode()).hexdigest()
+    if ws.meta.is_dir():
+        hashes.save()
+    return Plan(order, keys, material)
+
+
+# ---------------------------------------------------------------------------------------------
+# Running
+
+
+@dataclass
+class RunResult:
+    workspace: Path
+    ran: list[str]
+    cached: list[str]
+    seconds: dict[str, float]
+    summaries: dict[str, dict]
+
+
+def run(cfg: RunConfig, *, from_stage: str | None = None, until: str | None = None,
+        force: list[str] | tuple[str, ...] = ()) -> RunResult:
+    """Run the pipeline: skip what is cached, run the rest in order, publish outputs."""
+    ws = Workspace(cfg.workspace)
+    for name in [from_stage, until, *force]:
+        if name is not None and name not in REGISTRY:
+            raise ConfigError(f"unknown stage '{name}'; stages are {', '.join(REGISTRY)}")
+    with ws.locked():
+        _setup_log_file(ws)
+        p = plan(cfg, ws)
+        order = p.order
+        if until is not None:
+            if until not in order:
+                raise ConfigError(f"--until {until}: stage is not part of this run ({', '.join(order)})")
+            order = order[: order.index(until) + 1]
+        if from_stage is not None and from_stage not in order:
+            raise ConfigError(f"--from {from_stage}: stage is not part of this run ({', '.join(order)})")
+        before = set(order[: order.index(from_stage)]) if from_stage else set()
+        forced: set[str] = set()
+        for name in force:
+            if name in order:
+                forced.update(order[order.index(name):])
+        executor = Executor(cfg.run.executor)
+        result = RunResult(ws.root, [], [], {}, {})
+        outputs: dict[str, Path] = {}
+        try:
+            for name in order:
+                key = p.keys[name]
+                if ws.is_complete(name, key) and name not in forced:
+                    outputs[name] = ws.output_dir(name, key)
+                    result.cached.append(name)
+                    _publish(ws, name, outputs[name])
+                    ws.set_state(name, key)
+                    log.debug("%s: cached (%s)", name, key[:16])
+                    continue
+                if name in before:
+                    raise ConfigError(f"--from {from_stage}: stage '{name}' before it has no complete "
+                                      "output for this config; run without --from first")
+                outputs[name] = _run_stage(cfg, ws, name, key, p.material[name], outputs, executor, result)
+        finally:
+            executor.shutdown()
+        return result
+
+
+def _run_stage(cfg: RunConfig, ws: Workspace, name: str, key: str, material: dict,
+               outputs: dict[str, Path], executor: Executor, result: RunResult) -> Path:
+    stage = REGISTRY[name]
+    out = ws.begin(name, key)
+    ctx = StageContext(name=name, out=out, workspace=ws, images=cfg.images, seed=cfg.run.seed,
+                       executor=executor, upstream={d: outputs[d] for d in stage.requires if d in outputs},
+                       config={"run": cfg.run, "stages": cfg.stages})
+    log.info("%s: running", name)
+    start = time.time()
+    summary = stage.run(ctx, cfg.stages[name]) or {}
+    seconds = time.time() - start
+    manifest = {
+        "stage": name,
+        "version": stage.version,
+        "key": key,
+        "config": material["config"],
+        "upstream": material["upstream"],
+        "seed": material["seed"],
+        "fingerprint": material["fingerprint"],
+        "started": start,
+        "finished": time.time(),
+        "seconds": round(seconds, 3),
+        "summary": summary,
+        "versions": library_versions(),
+    }
+    final = ws.commit(name, key, manifest)
+    ws.set_state(name, key)
+    _publish(ws, name, final)
+    log.info("%s: done in %.1f s%s", name, seconds, _summary_text(summary))
+    result.ran.append(name)
+    result.seconds[name] = seconds
+    result.summaries[name] = summary
+    return final
+
+
+def _publish(ws: Workspace, name: str, out: Path) -> None:
+    for rel, link in REGISTRY[name].publish.items():
+        if (out / rel).exists():
+            ws.publish(out / rel, link)
+
+
+def _summary_text(summary: dict) -> str:
+    parts = [f"{k}={v}" for k, v in summary.items() if isinstance(v, (int, float, str)) and len(str(v)) < 40]
+    return f" ({', '.join(parts)})" if parts else ""
+
+
+def _setup_log_file(ws: Workspace) -> None:
+    path = ws.meta / "recon.log"
+    root = logging.getLogger("recon")
+    for handler in root.handlers:
+        if isinstance(handler, logging.FileHandler) and Path(handler.baseFilename) == path:
+            return
+    for handler in [h for h in root.handlers if isinstance(h, logging.FileHandler)]:
+        root.removeHandler(handler)
+        handler.close()
+    handler = logging.FileHandler(path)
+    handler.setLevel(logging.DEBUG)
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root.addHandler(handler)
+    root.setLevel(logging.DEBUG)
+
+
+def library_versions() -> dict[str, str]:
+    versions = {"python": platform.python_version()}
+    for dist in ("recon", "pycolmap", "numpy", "opencv-python-headless", "open3d", "numba", "trimesh"):
+        try:
+            versions[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            pass
+    return versions
+
+
+# ---------------------------------------------------------------------------------------------
+# Status and cleaning
+
+
+@dataclass
+class StageStatus:
+    name: str
+    state: str  # done | stale | missing
+    why: str = ""
+    key: str = ""
+
+
+def status(cfg: RunConfig) -> list[StageStatus]:
+    """Per stage: done, stale (and why), or missing, for this config."""
+    ws = Workspace(cfg.workspace)
+    if not ws.meta.is_dir():
+        return [StageStatus(n, "missing", "no workspace yet") for n in selected_stages(cfg)]
+    p = plan(cfg, ws)
+    state = ws.state()
+    rows = []
+    for name in p.order:
+        key = p.keys[name]
+        if ws.is_complete(name, key):
+            rows.append(StageStatus(name, "done", "", key))
+            continue
+        previous = ws.manifest(name, state[name]) if name in state else None
+        if previous is None:
+            runs = ws.manifests(name)
+            previous = runs[-1] if runs else None
+        if previous is None:
+            rows.append(StageStatus(name, "missing", "never run", key))
+        else:
+            rows.append(StageStatus(name, "stale", _why_stale(previous, p.material[name]), key))
+    return rows
+
+
+def _why_stale(previous: dict, now: dict) -> str:
+    if previous.get("version") != now["version"]:
+        return f"stage version {previous.get('version')} -> {now['version']}"
+    changes = _diff(previous.get("config", {}), now["config"], now["stage"])
+    if changes:
+        return "; ".join(changes[:3]) + (" ..." if len(changes) > 3 else "")
+    ups = [d for d, k in now["upstream"].items() if previous.get("upstream", {}).get(d) != k]
+    if ups:
+        return f"upstream changed: {', '.join(ups)}"
+    if previous.get("seed") != now["seed"]:
+        return f"seed {previous.get('seed')} -> {now['seed']}"
+    if previous.get("fingerprint") != now["fingerprint"]:
+        return "input files changed"
+    return "output missing"
+
+
+def _diff(old: Any, new: Any, path: str) -> list[str]:
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = []
+        for k in sorted(set(old) | set(new)):
+            out += _diff(old.get(k), new.get(k), f"{path}.{k}")
+        return out
+    return [] if old == new else [f"{path}: {old!r} -> {new!r}"]
+
+
+def clean(cfg: RunConfig | None, workspace: Path, everything: bool = False) -> tuple[int, int]:
+    """Remove cached outputs the current config does not use (or all of them). Returns (folders, bytes)."""
+    ws = Workspace(workspace)
+    if not ws.meta.is_dir():
+        raise WorkspaceError(f"{workspace}: not a recon workspace (no {ws.meta.name}/ folder)")
+    with ws.locked():
+        keep = set()
+        if cfg is not None and not everything:
+            p = plan(cfg, ws)
+            keep = {ws.output_dir(n, k) for n, k in p.keys.items()}
+        elif not everything:
+            keep = {ws.output_dir(n, k) for n, k in ws.state().items()}
+        removed = freed = 0
+        for stage_dir in (ws.meta / "cache").glob("*"):
+            for out in stage_dir.iterdir():
+                if out in keep:
+                    continue
+                freed += sum(f.stat().st_size for f in out.rglob("*") if f.is_file() and not f.is_symlink())
+                shutil.rmtree(out, ignore_errors=True)
+                removed += 1
+        if everything:
+            (ws.meta / "state.json").unlink(missing_ok=True)
+            for stage in REGISTRY.values():
+                for link in stage.publish.values():
+                    path = ws.root / link
+                    if path.is_symlink():
+                        path.unlink()
+        return removed, freed

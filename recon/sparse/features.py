@@ -1,0 +1,92 @@
+"""SIFT features of one photo through pycolmap, at a bounded image size.
+
+COLMAP's default maximum image size (3200 px) with its default first octave (-1, i.e. the image
+upsampled 2x) spends most of its time on scales that rarely survive matching on large photos. recon
+downsizes with area interpolation (anti-aliased) to ``max_image_size`` and, by default, upsamples
+only small images (``first_octave: auto``), then scales keypoints back to the photo's pixel frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+#: extractor types that need pycolmap's ONNX build: on the CPU wheel they abort the whole process
+ONNX_ONLY = {"aliked", "aliked_n16", "aliked_n16rot", "aliked_n32", "aliked_t16", "loma", "superpoint",
+             "disk", "lightglue"}
+
+
+@dataclass(frozen=True)
+class SiftSettings:
+    max_image_size: int
+    max_num_features: int
+    first_octave: int | None  # None = auto
+    peak_threshold: float
+    edge_threshold: float
+    estimate_affine_shape: bool
+    domain_size_pooling: bool
+    upright: bool
+    darkness_adaptivity: bool
+
+
+#: below this size (longest side, after resizing) the image is upsampled for the first octave
+AUTO_UPSAMPLE_BELOW = 1200
+
+
+def load_gray(path: Path, max_size: int) -> tuple[np.ndarray, float, float]:
+    """The photo in 8-bit grey, downsized to ``max_size`` with area interpolation; and the scales."""
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise OSError(f"{path}: cannot read image")
+    h, w = img.shape
+    scale = min(1.0, max_size / max(h, w)) if max_size > 0 else 1.0
+    if scale < 1.0:
+        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+    return np.ascontiguousarray(img), w / img.shape[1], h / img.shape[0]
+
+
+def extract_sift(path: Path, s: SiftSettings) -> tuple[np.ndarray, np.ndarray]:
+    """Keypoints (N x 4: x, y, scale, orientation; photo pixel frame) and uint8 descriptors (N x 128)."""
+    import pycolmap
+
+    img, sx, sy = load_gray(path, s.max_image_size)
+    opts = pycolmap.FeatureExtractionOptions()
+    opts.num_threads = 1
+    opts.max_image_size = -1
+    sift = opts.sift
+    sift.max_num_features = s.max_num_features
+    sift.first_octave = s.first_octave if s.first_octave is not None else (
+        -1 if max(img.shape) < AUTO_UPSAMPLE_BELOW else 0)
+    sift.peak_threshold = s.peak_threshold
+    sift.edge_threshold = s.edge_threshold
+    sift.estimate_affine_shape = s.estimate_affine_shape
+    sift.domain_size_pooling = s.domain_size_pooling
+    sift.upright = s.upright
+    sift.darkness_adaptivity = s.darkness_adaptivity
+    extractor = pycolmap.FeatureExtractor.create(opts, pycolmap.Device.cpu)
+    kp, desc = extractor.extract(pycolmap.Bitmap.from_array(img))
+    keypoints = pycolmap.keypoints_to_matrix(kp).astype(np.float32)
+    if keypoints.shape[1] == 6:  # affine shape: (x, y, a11, a12, a21, a22)
+        keypoints[:, 2:] *= np.float32((sx + sy) / 2)
+    else:
+        keypoints[:, 2] *= np.float32((sx + sy) / 2)
+    keypoints[:, 0] *= np.float32(sx)
+    keypoints[:, 1] *= np.float32(sy)
+    return keypoints, np.ascontiguousarray(desc.data, dtype=np.uint8)
+
+
+def save_features(path: Path, keypoints: np.ndarray, descriptors: np.ndarray) -> None:
+    """Write one photo's features atomically (a kill never leaves a half-written file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.npz")
+    np.savez(tmp, keypoints=keypoints, descriptors=descriptors)
+    tmp.replace(path)
+
+
+def load_features(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    with np.load(path) as data:
+        return data["keypoints"], data["descriptors"]

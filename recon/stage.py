@@ -1,0 +1,140 @@
+"""The Stage contract and the stage registry.
+
+A stage is a small class with a ``name``, a ``version`` (bump it when its output would change for
+the same inputs), a ``Config`` dataclass (every field declared with :func:`recon.options.opt`), the
+stages it ``requires`` (whose outputs it reads), the ``outputs`` it writes, the workspace paths it
+``publish``-es, and ``run(ctx, cfg)``, which reads its inputs through ``ctx`` and writes only into
+``ctx.out``. The pipeline decides whether it runs, from its cache key (DESIGN.md, "A stage").
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+from recon.executor import Executor
+from recon.workspace import Workspace
+
+
+class StageError(RuntimeError):
+    """A stage failed for a reason the user can act on; the message says what to do."""
+
+
+class Stage:
+    name: ClassVar[str]
+    version: ClassVar[int] = 1
+    Config: ClassVar[type]
+    requires: ClassVar[tuple[str, ...]] = ()
+    outputs: ClassVar[tuple[str, ...]] = ()
+    #: output-relative path -> workspace-relative link
+    publish: ClassVar[dict[str, str]] = {}
+    #: whether the run's seed changes this stage's output (then it is part of the key)
+    uses_seed: ClassVar[bool] = False
+    summary: ClassVar[str] = ""
+
+    def fingerprint(self, ctx: StageContext, cfg: Any) -> Any:
+        """Extra cache-key material (ingest: the input files' content). None for most stages."""
+        return None
+
+    def run(self, ctx: StageContext, cfg: Any) -> dict:
+        """Do the work; return a small summary (counts, figures) recorded in the manifest."""
+        raise NotImplementedError
+
+
+REGISTRY: dict[str, Stage] = {}
+
+
+def register(cls: type[Stage]) -> type[Stage]:
+    """Class decorator: add a stage to the registry (registration order = pipeline order)."""
+    REGISTRY[cls.name] = cls()
+    return cls
+
+
+@dataclass
+class StageContext:
+    """What a running stage sees: its output folder, its inputs, the executor, a logger."""
+
+    name: str
+    out: Path
+    workspace: Workspace
+    images: Path | None
+    seed: int
+    executor: Executor
+    upstream: dict[str, Path] = field(default_factory=dict)
+    config: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def log(self) -> logging.Logger:
+        return logging.getLogger(f"recon.{self.name}")
+
+    def input(self, stage: str) -> Path:
+        """The completed output folder of an upstream stage."""
+        try:
+            return self.upstream[stage]
+        except KeyError:
+            raise StageError(f"{self.name}: needs the output of stage '{stage}', which this run "
+                             "does not include; add it to `stages`") from None
+
+    def map(self, fn: Callable, items: Iterable, *, desc: str,
+            done: Callable[[Any], bool] | None = None) -> list:
+        """Run ``fn(item)`` for each item through the executor, one task per item.
+
+        Items for which ``done(item)`` is true were finished by an earlier, interrupted run and are
+        skipped (their result is None): per-item resume. ``fn`` writes its own output atomically.
+        """
+        items = list(items)
+        todo = [i for i, item in enumerate(items) if done is None or not done(item)]
+        results: list = [None] * len(items)
+        if len(todo) < len(items):
+            self.log.info("%s: %d of %d already done, resuming", desc, len(items) - len(todo), len(items))
+        progress = Progress(self.log, desc, len(todo))
+        if len(todo) <= 1 or self.executor.spec == "serial":
+            for i in todo:
+                results[i] = fn(items[i])
+                progress.advance()
+            return results
+        pool = self.executor.pool
+        futures = {pool.submit(fn, items[i]): i for i in todo}
+        try:
+            for future in _as_completed(futures):
+                results[futures[future]] = future.result()
+                progress.advance()
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+        return results
+
+
+def _as_completed(futures):
+    import concurrent.futures as cf
+
+    try:
+        yield from cf.as_completed(futures)
+    except TypeError:  # dask futures
+        from dask.distributed import as_completed
+
+        yield from as_completed(list(futures))
+
+
+class Progress:
+    """Counts and ETA for long work, logged at most every few seconds."""
+
+    def __init__(self, log: logging.Logger, desc: str, total: int, every: float = 5.0):
+        self.log, self.desc, self.total, self.every = log, desc, total, every
+        self.done = 0
+        self.start = self.last = time.monotonic()
+
+    def advance(self, n: int = 1) -> None:
+        self.done += n
+        now = time.monotonic()
+        if self.done >= self.total or now - self.last >= self.every:
+            self.last = now
+            elapsed = now - self.start
+            eta = elapsed / self.done * (self.total - self.done) if self.done else 0.0
+            tail = f", ETA {eta:.0f} s" if self.done < self.total else f" in {elapsed:.1f} s"
+            self.log.info("%s: %d/%d%s", self.desc, self.done, self.total, tail)

@@ -1,0 +1,42 @@
+"""export: the largest sparse model as COLMAP text, a coloured points.ply and nerfstudio's transforms.json."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from recon.options import opt
+from recon.sparse.export import transforms_json, write_points_ply
+from recon.stage import Stage, StageContext, register
+from recon.workspace import write_json
+
+
+@dataclass(frozen=True)
+class ExportConfig:
+    colmap_text: bool = opt(True, "also write the model as COLMAP text files (sparse_text/)")
+    transforms: bool = opt(True, "write nerfstudio's transforms.json (image paths relative to the workspace)")
+    points: bool = opt(True, "write the sparse points with colours as points.ply")
+
+
+@register
+class Export(Stage):
+    name = "export"
+    version = 1
+    Config = ExportConfig
+    requires = ("sfm",)
+    outputs = ("sparse_text/", "points.ply", "transforms.json")
+    publish = {"sparse_text": "sparse_text", "points.ply": "points.ply", "transforms.json": "transforms.json"}
+    summary = "COLMAP text model, coloured points.ply, nerfstudio transforms.json"
+
+    def run(self, ctx: StageContext, cfg: ExportConfig) -> dict:
+        import pycolmap
+
+        rec = pycolmap.Reconstruction(str(ctx.input("sfm") / "sparse" / "0"))
+        summary = {"registered": rec.num_reg_images()}
+        if cfg.colmap_text:
+            (ctx.out / "sparse_text").mkdir(exist_ok=True)
+            rec.write_text(str(ctx.out / "sparse_text"))
+        if cfg.points:
+            summary["points"] = write_points_ply(rec, ctx.out / "points.ply")
+        if cfg.transforms:
+            write_json(ctx.out / "transforms.json", transforms_json(rec))
+        return summary

@@ -1,0 +1,143 @@
+"""ingest: a folder of photos -> a checked image list with camera groups and EXIF focal priors."""
+
+from __future__ import annotations
+
+import os
+from collections import defaultdict
+from dataclasses import dataclass
+from typing import Literal
+
+from recon.options import opt
+from recon.sparse.photos import PhotoError, inspect_photo, list_photos, normalized_copy
+from recon.stage import Stage, StageContext, StageError, register
+from recon.workspace import HashCache, write_json
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    camera_mode: Literal["auto", "single", "per_folder", "per_image"] = opt(
+        "auto", "camera grouping: auto = one per folder, per image where sizes differ in a folder")
+    camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = opt(
+        "SIMPLE_RADIAL", "COLMAP camera model fitted by bundle adjustment")
+    default_focal_factor: float = opt(1.2, "focal = factor x max(width, height) when EXIF has none", gt=0)
+    skip_unreadable: bool = opt(True, "skip corrupt/empty photos with a warning instead of stopping")
+
+
+def _photo_name(ctx: StageContext, path) -> str:
+    return path.relative_to(ctx.images).as_posix()
+
+
+def _images_folder(ctx: StageContext):
+    if ctx.images is None:
+        raise StageError("images: no photo folder given; set `images:` in the config or pass --images DIR")
+    if not ctx.images.is_dir():
+        raise StageError(f"images: {ctx.images} is not a folder; pass the folder that holds the photos")
+    return ctx.images
+
+
+@register
+class Ingest(Stage):
+    name = "ingest"
+    version = 1
+    Config = IngestConfig
+    outputs = ("images/", "images.json")
+    publish = {"images": "images"}
+    summary = "check the photos, group them into cameras, read EXIF focal lengths"
+
+    def fingerprint(self, ctx: StageContext, cfg: IngestConfig):
+        folder = _images_folder(ctx)
+        photos, _ = list_photos(folder)
+        hashes = ctx.config["hashes"]
+        return [[_photo_name(ctx, p), hashes.digest(p)] for p in photos]
+
+    def run(self, ctx: StageContext, cfg: IngestConfig) -> dict:
+        folder = _images_folder(ctx)
+        photos, others = list_photos(folder)
+        if others:
+            shown = ", ".join(p.name for p in others[:5]) + (" ..." if len(others) > 5 else "")
+            ctx.log.warning("skipped %d files that are not JPEG/PNG/TIFF photos: %s", len(others), shown)
+        if not photos:
+            raise StageError(f"images: {folder} holds no JPEG, PNG or TIFF photos")
+        infos, bad = [], []
+        for path in photos:
+            try:
+                infos.append((path, inspect_photo(path, _photo_name(ctx, path))))
+            except PhotoError as exc:
+                if not cfg.skip_unreadable:
+                    raise StageError(str(exc)) from None
+                ctx.log.warning("skipped: %s", exc)
+                bad.append(str(exc))
+        if len(infos) < 2:
+            raise StageError(f"images: {folder} has {len(infos)} readable photo(s); reconstruction needs at least 2")
+        out_images = ctx.out / "images"
+        out_images.mkdir(exist_ok=True)
+        copies = 0
+        for path, info in infos:
+            dest = out_images / info.name
+            if info.needs_copy:
+                if not dest.exists() or dest.is_symlink():
+                    normalized_copy(path, dest)
+                copies += 1
+            else:
+                dest.parent.mkdir(parents=True, exist_ok=True)
+                if dest.is_symlink() or dest.exists():
+                    dest.unlink()
+                os.symlink(path.resolve(), dest)
+        cameras, image_camera = _group_cameras([i for _, i in infos], cfg)
+        duplicates = _duplicates(ctx, [(p, i.name) for p, i in infos])
+        for group in duplicates:
+            ctx.log.warning("identical photos (kept, but they add nothing): %s", ", ".join(group))
+        write_json(ctx.out / "images.json", {
+            "images": [{"name": i.name, "width": i.width, "height": i.height, "camera": image_camera[i.name],
+                        "focal_px": i.focal_px, "converted": i.needs_copy} for _, i in infos],
+            "cameras": cameras,
+            "skipped": [str(p) for p in others] + bad,
+            "duplicates": duplicates,
+        })
+        with_exif = sum(1 for _, i in infos if i.focal_px)
+        return {"images": len(infos), "cameras": len(cameras), "exif_focal": with_exif,
+                "converted": copies, "skipped": len(others) + len(bad), "duplicates": len(duplicates)}
+
+
+def _group_cameras(infos, cfg: IngestConfig) -> tuple[list[dict], dict[str, int]]:
+    """Camera groups: one per folder (auto), splitting a folder per image when photo sizes differ."""
+    groups: dict[tuple, list] = defaultdict(list)
+    for info in infos:
+        folder = info.name.rsplit("/", 1)[0] if "/" in info.name else ""
+        if cfg.camera_mode == "single":
+            key = ("", info.width, info.height)
+        elif cfg.camera_mode == "per_image":
+            key = (info.name,)
+        else:
+            key = (folder,)
+        groups[key].append(info)
+    if cfg.camera_mode in ("auto", "single"):
+        split: dict[tuple, list] = {}
+        for key, members in groups.items():
+            if len({(i.width, i.height) for i in members}) > 1:
+                if cfg.camera_mode == "single":
+                    raise StageError("ingest.camera_mode: 'single' but the photos have different sizes; "
+                                     "use 'auto' or 'per_image'")
+                split.update({(i.name,): [i] for i in members})
+            else:
+                split[key] = members
+        groups = split
+    cameras, image_camera = [], {}
+    for cam_id, members in enumerate(groups.values(), start=1):
+        first = members[0]
+        focals = [i.focal_px for i in members if i.focal_px]
+        prior = bool(focals)
+        focal = sorted(focals)[len(focals) // 2] if focals else cfg.default_focal_factor * max(first.width, first.height)
+        cameras.append({"id": cam_id, "model": cfg.camera_model, "width": first.width, "height": first.height,
+                        "focal": focal, "prior_focal": prior})
+        for info in members:
+            image_camera[info.name] = cam_id
+    return cameras, image_camera
+
+
+def _duplicates(ctx: StageContext, named) -> list[list[str]]:
+    hashes = HashCache(ctx.workspace)  # filled when the cache key was computed
+    by_digest: dict[str, list[str]] = defaultdict(list)
+    for path, name in named:
+        by_digest[hashes.digest(path)].append(name)
+    return [names for names in by_digest.values() if len(names) > 1]

@@ -1,0 +1,142 @@
+"""Ray-cast rendering of the synthetic scene: colour image, ground-truth depth and normals.
+
+One ray per pixel centre (open3d's RaycastingScene) gives depth, normals and colour. Pixels whose
+3x3 neighbourhood crosses a silhouette or a crease (another part, or a depth jump) are re-cast with
+``supersample`` x ``supersample`` rays and averaged: geometric anti-aliasing where it is needed.
+Texture anti-aliasing is done by trilinear mip-mapping (see textures.py), which filters over the
+sample's footprint on the surface.
+
+Shading is Lambertian with a fixed directional light plus ambient, no shadows and no specular
+term: a surface point has the same colour from every view, so photo-consistency holds exactly up
+to resampling, texture filtering and JPEG. Rays that miss get a uniform sky colour and depth 0.
+
+Ray directions are ``R^T K^-1 (u, v, 1)``, unnormalised, so the hit parameter is the camera z.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from recon._open3d import open3d
+from recon.eval.groundtruth import Camera
+from recon.geometry.transforms import apply_matrix
+from recon.synth.scene import Scene
+from recon.synth.textures import sample
+
+LIGHT = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
+AMBIENT = 0.42
+DIFFUSE = 0.62
+SKY = np.array([0.77, 0.82, 0.89], np.float32)
+DEPTH_JUMP = 0.03  # relative depth change between neighbours that counts as an occlusion edge
+
+
+class Renderer:
+    """Renders views of one :class:`~recon.synth.scene.Scene`."""
+
+    def __init__(self, scene: Scene):
+        o3d = open3d()
+        self.scene = scene
+        self._rays = o3d.t.geometry.RaycastingScene()
+        self._rays.add_triangles(o3d.core.Tensor(scene.vertices.astype(np.float32)),
+                                 o3d.core.Tensor(scene.faces.astype(np.uint32)))
+        # per triangle: uv0, uv1-uv0, uv2-uv0, n0, n1-n0, n2-n0 packed in one row, so a hit needs a
+        # single gather: attribute = a0 + b1 * d1 + b2 * d2 with (b1, b2) open3d's barycentrics
+        uv, nv = scene.uv[scene.faces], scene.normals[scene.faces]
+        self._face_attr = np.concatenate([uv[:, 0], uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0],
+                                          nv[:, 0], nv[:, 1] - nv[:, 0], nv[:, 2] - nv[:, 0]], 1).astype(np.float32)
+        self._density = np.array([p.texels_per_unit for p in scene.parts])
+        self._grids: dict[tuple, np.ndarray] = {}
+
+    def render(self, cam: Camera, supersample: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(RGB uint8 HxWx3, depth float32 HxW (camera z, 0 = sky), normals float32 HxWx3 in the camera
+        frame facing it, 0 = sky) of camera ``cam``."""
+        w, h = cam.width, cam.height
+        key = (w, h, cam.K.tobytes())
+        if key not in self._grids:  # pixel-centre rays depend on the intrinsics only
+            jj, ii = np.meshgrid(np.arange(w, dtype=np.float32) + 0.5, np.arange(h, dtype=np.float32) + 0.5)
+            self._grids[key] = _camera_rays(cam.K, np.column_stack([jj.ravel(), ii.ravel()]))
+        dirs_cam = self._grids[key]
+        hit = self._cast(cam, dirs_cam, 1.0)
+        idx = hit["idx"]
+
+        depth = np.zeros(h * w, np.float32)
+        depth[idx] = hit["t"]
+        normal = np.zeros((h * w, 3), np.float32)
+        n_cam = apply_matrix(cam.R.astype(np.float32), hit["normals"])
+        n_cam[np.einsum("ij,ij->i", n_cam, dirs_cam[idx]) > 0] *= -1
+        normal[idx] = n_cam
+        colour = np.tile(SKY, (h * w, 1))
+        colour[idx] = hit["colour"]
+        part = np.full(h * w, -1, np.int32)
+        part[idx] = hit["part"]
+        depth, normal, colour = depth.reshape(h, w), normal.reshape(h, w, 3), colour.reshape(h, w, 3)
+
+        edges = _edges(part.reshape(h, w), depth)
+        if supersample > 1 and edges.any():
+            ei, ej = np.nonzero(edges)
+            offs = (np.arange(supersample, dtype=np.float32) + 0.5) / supersample
+            oy, ox = np.meshgrid(offs, offs, indexing="ij")
+            px = np.stack([ej[:, None] + ox.ravel()[None], ei[:, None] + oy.ravel()[None]], -1).reshape(-1, 2)
+            sub = self._cast(cam, _camera_rays(cam.K, px), 1.0 / supersample)
+            sub_col = np.tile(SKY, (len(px), 1))
+            sub_col[sub["idx"]] = sub["colour"]
+            colour[ei, ej] = sub_col.reshape(len(ei), -1, 3).mean(1)
+        rgb = np.clip(colour * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        return rgb, depth, normal
+
+    def _cast(self, cam: Camera, dirs_cam: np.ndarray, sample_pixels: float) -> dict[str, np.ndarray]:
+        """Cast rays with camera-frame directions ``dirs_cam`` (N, 3, z = 1) and shade the hits.
+        ``sample_pixels`` is the sample spacing in pixels (sets the texture filter footprint).
+        Returns, for the rays that hit (indices ``idx``): depth ``t``, ``part``, world ``normals``
+        and ``colour``."""
+        o3d = open3d()
+        rays = np.empty((len(dirs_cam), 6), np.float32)
+        rays[:, :3] = cam.center
+        rays[:, 3:] = apply_matrix(cam.R.T.astype(np.float32), dirs_cam)
+        res = self._rays.cast_rays(o3d.core.Tensor(rays))
+        t = res["t_hit"].numpy()
+        idx = np.flatnonzero(np.isfinite(t))
+        t = t[idx]
+        prim = res["primitive_ids"].numpy()[idx].astype(np.int64)
+        bary = res["primitive_uvs"].numpy()[idx]
+        b1, b2 = bary[:, 0:1], bary[:, 1:2]
+        a = self._face_attr[prim]
+        uv = a[:, 0:2] + b1 * a[:, 2:4] + b2 * a[:, 4:6]
+        n = a[:, 6:9] + b1 * a[:, 9:12] + b2 * a[:, 12:15]
+        n *= (1.0 / np.sqrt(np.einsum("ij,ij->i", n, n)))[:, None]
+        d = rays[idx, 3:]
+        cos = np.abs(np.einsum("ij,ij->i", n, d)) / np.sqrt(np.einsum("ij,ij->i", d, d))
+        # world size of one sample on the surface: z / f per pixel, stretched on oblique surfaces
+        # (geometric mean of the two axes' stretch: between blurring and aliasing)
+        footprint = t * np.float32(sample_pixels / cam.K[0, 0]) / np.sqrt(np.maximum(cos, 0.05))
+        part = self.scene.face_part[prim]
+        albedo = np.empty((len(idx), 3), np.float32)
+        for k in np.unique(part):
+            sel = np.flatnonzero(part == k)
+            level = np.log2(np.maximum(footprint[sel] * self._density[k], 1e-6))
+            albedo[sel] = sample(self.scene.parts[k].texture, uv[sel], level)
+        shade = AMBIENT + DIFFUSE * np.maximum(n[:, 0] * LIGHT[0] + n[:, 1] * LIGHT[1] + n[:, 2] * LIGHT[2], 0.0)
+        return {"idx": idx, "t": t, "part": part, "normals": n, "colour": albedo * shade[:, None].astype(np.float32)}
+
+
+def _camera_rays(K: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """Camera-frame ray directions K^-1 (u, v, 1) (z = 1, so a hit's parameter is its depth)."""
+    Kinv = np.linalg.inv(K)
+    return apply_matrix(Kinv.astype(np.float32), np.column_stack([px, np.ones(len(px), np.float32)]))
+
+
+def _edges(part: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """Pixels whose 8-neighbourhood holds another part (or sky) or a relative depth jump."""
+    h, w = part.shape
+    pp = np.pad(part, 1, mode="edge")
+    dp = np.pad(depth, 1, mode="edge")
+    edges = np.zeros((h, w), bool)
+    for dy in (0, 1, 2):
+        for dx in (0, 1, 2):
+            if dy == 1 and dx == 1:
+                continue
+            nb_part = pp[dy : dy + h, dx : dx + w]
+            nb_depth = dp[dy : dy + h, dx : dx + w]
+            edges |= nb_part != part
+            edges |= np.abs(nb_depth - depth) > DEPTH_JUMP * np.maximum(depth, nb_depth)
+    return edges

@@ -1,0 +1,143 @@
+"""Pose metrics: AUC definition, gauge invariance, known perturbations, unregistered images."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from recon.eval.groundtruth import Camera
+from recon.eval.poses import pose_auc, pose_metrics
+from recon.geometry.transforms import (
+    Similarity,
+    camera_center,
+    relative_pose,
+    rotation_angle_deg,
+    vector_angle_deg,
+)
+from recon.synth import scene_cameras
+
+
+@pytest.fixture(scope="module")
+def gt():
+    return scene_cameras(20, 640, 480, seed=0)[0]
+
+
+def as_est(cams):
+    return {n: (c.R.copy(), c.t.copy()) for n, c in cams.items()}
+
+
+def test_perfect_estimate(gt):
+    m = pose_metrics(as_est(gt), gt)
+    assert m["registered"] == m["total"] == 20
+    assert m["pairs"] == 190
+    for k in ("auc@1", "auc@3", "auc@5"):
+        assert m[k] == pytest.approx(100.0, abs=1e-6)
+    assert m["median_center_error"] == pytest.approx(0.0, abs=1e-9)
+    assert m["median_center_error_rel"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_gauge_invariance(gt):
+    sim = Similarity(3.7, Rotation.from_euler("xyz", [20, -40, 75], degrees=True).as_matrix(),
+                     np.array([5.0, -2.0, 11.0]))
+    est = {n: sim.apply_to_pose(c.R, c.t) for n, c in gt.items()}
+    m = pose_metrics(est, gt)
+    for k in ("auc@1", "auc@3", "auc@5"):
+        assert m[k] == pytest.approx(100.0, abs=1e-6)
+    assert m["median_center_error"] < 1e-9
+
+
+def reference_errors(est, gt):
+    """Pair errors computed pair by pair with the scalar helpers (an independent path)."""
+    names = sorted(gt)
+    out = []
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            Rg, tg = relative_pose((gt[a].R, gt[a].t), (gt[b].R, gt[b].t))
+            Re, te = relative_pose(est[a], est[b])
+            out.append(max(rotation_angle_deg(Re, Rg), vector_angle_deg(te, tg)))
+    return np.array(out)
+
+
+def test_rotation_perturbation_of_known_size(gt):
+    # turn every camera by 2 degrees about its own centre (random axes): a pair's relative rotation
+    # is then off by at most 4 degrees and its relative translation direction by at most 2
+    est = {}
+    rng = np.random.default_rng(0)
+    for n, c in gt.items():
+        axis = rng.normal(size=3)
+        R = Rotation.from_rotvec(np.radians(2.0) * axis / np.linalg.norm(axis)).as_matrix() @ c.R
+        est[n] = (R, -R @ c.center)
+    errors = reference_errors(est, gt)
+    assert errors.max() <= 4.0 + 1e-9 and 1.0 < np.median(errors) < 4.0
+    m = pose_metrics(est, gt)
+    for thr in (1, 3, 5):
+        assert m[f"auc@{thr}"] == pytest.approx(pose_auc(errors, [thr])[0])
+    assert m["auc@1"] < 10.0
+    assert 100 * (1 - 4 / 5) <= m["auc@5"] < 100 * (1 - 1 / 5)
+    assert m["median_center_error"] < 1e-9  # centres untouched
+
+
+def test_single_camera_translation_error(gt):
+    # move one camera sideways: only its 19 pairs get an error
+    names = sorted(gt)
+    est = as_est(gt)
+    c = gt[names[3]]
+    moved = c.center + 0.3 * c.R[0]
+    est[names[3]] = (c.R, -c.R @ moved)
+    errors = reference_errors(est, gt)
+    assert np.count_nonzero(errors > 1e-6) == 19 and 1.0 < errors.max() < 20.0
+    m = pose_metrics(est, gt)
+    for thr in (1, 3, 5):
+        assert m[f"auc@{thr}"] == pytest.approx(pose_auc(errors, [thr])[0])
+    assert m["auc@5"] >= 100.0 * 171 / 190 - 1e-9
+    assert m["median_center_error"] == pytest.approx(0.0, abs=1e-6)  # robust to one moved camera
+
+
+def test_unregistered_images_count_180(gt):
+    names = sorted(gt)
+    est = {n: (gt[n].R, gt[n].t) for n in names[:15]}  # 5 of 20 missing
+    m = pose_metrics(est, gt)
+    assert m["registered"] == 15 and m["total"] == 20
+    good_share = (15 * 14 / 2) / 190
+    for k in ("auc@1", "auc@3", "auc@5"):
+        assert m[k] == pytest.approx(100.0 * good_share, abs=1e-6)
+    assert m["median_center_error"] == pytest.approx(0.0, abs=1e-9)
+    # fewer than 3 registered: no centre alignment
+    m2 = pose_metrics({n: (gt[n].R, gt[n].t) for n in names[:2]}, gt)
+    assert np.isnan(m2["median_center_error"]) and m2["registered"] == 2
+    assert m2["auc@5"] == pytest.approx(100.0 / 190, abs=1e-6)
+    # estimates for images outside the ground truth are ignored
+    m3 = pose_metrics({**as_est(gt), "extra.jpg": (np.eye(3), np.zeros(3))}, gt)
+    assert m3["registered"] == 20
+
+
+def test_center_error_scaled_to_gt_units(gt):
+    # estimated in another gauge with every centre off by a known 0.1 (GT units) along a fixed
+    # per-camera direction perpendicular to the orbit plane, alternating sign
+    sim = Similarity(0.2, np.eye(3), np.array([1.0, 2.0, 3.0]))
+    est = {}
+    for i, (n, c) in enumerate(sorted(gt.items())):
+        centre = c.center + np.array([0, 0, 0.1 if i % 2 else -0.1])
+        R = c.R
+        R2, t2 = sim.apply_to_pose(R, -R @ centre)
+        est[n] = (R2, t2)
+    m = pose_metrics(est, gt)
+    assert m["median_center_error"] == pytest.approx(0.1, rel=0.05)
+    centres = np.array([camera_center(c.R, c.t) for c in gt.values()])
+    spread = np.median(np.linalg.norm(centres - centres.mean(0), axis=1))
+    assert m["median_center_error_rel"] == pytest.approx(m["median_center_error"] / spread)
+
+
+def test_auc_matches_glue_factory_definition():
+    errors = np.array([0.5, 1.5, 2.5, 10.0])
+    # recall steps 0.25 at each error: area under the step-with-trapezoids curve up to 3
+    # points (0,0) (0.5,.25) (1.5,.5) (2.5,.75) (3,.75)
+    area = 0.5 * 0.25 / 2 + 1.0 * (0.25 + 0.5) / 2 + 1.0 * (0.5 + 0.75) / 2 + 0.5 * 0.75
+    assert pose_auc(errors, [3.0])[0] == pytest.approx(100 * area / 3)
+    assert pose_auc(np.zeros(5), [1.0])[0] == pytest.approx(100.0)
+    assert pose_auc(np.full(5, 180.0), [5.0])[0] == 0.0
+
+
+def test_single_image_has_no_pairs():
+    cam = Camera(np.eye(3), np.eye(3), np.zeros(3), 10, 10)
+    m = pose_metrics({"a": (np.eye(3), np.zeros(3))}, {"a": cam})
+    assert m["pairs"] == 0 and m["registered"] == 1 and np.isnan(m["auc@5"])

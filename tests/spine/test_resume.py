@@ -1,0 +1,86 @@
+"""A run killed with SIGKILL mid-stage resumes where it stopped and gives the same model."""
+
+from __future__ import annotations
+
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pycolmap
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+SPARSE = REPO / "pipelines" / "sparse.yaml"
+
+
+def start_run(scene: Path, ws: Path, *overrides: str) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "recon.cli", "-q", "run", str(SPARSE), "--images", str(scene / "images"),
+           "--workspace", str(ws), "-o", "executor=serial"]
+    for o in overrides:
+        cmd += ["-o", o]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def kill_when(proc: subprocess.Popen, ready, timeout: float = 120) -> None:
+    deadline = time.monotonic() + timeout
+    while not ready():
+        if proc.poll() is not None:
+            raise AssertionError(f"run ended before the kill point: {proc.stderr.read()}")
+        if time.monotonic() > deadline:
+            proc.kill()
+            raise AssertionError("kill point not reached")
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+
+
+def features_done(ws: Path) -> int:
+    return len(list(ws.glob(".recon/cache/features/*.partial/features/*.npz")))
+
+
+def matched_pairs(ws: Path) -> int:
+    for db in ws.glob(".recon/cache/matching/*.partial/database.db"):
+        try:
+            with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=0.1) as con:
+                return con.execute("SELECT COUNT(*) FROM two_view_geometries").fetchone()[0]
+        except sqlite3.Error:
+            return 0
+    return 0
+
+
+def poses(ws: Path) -> dict[str, np.ndarray]:
+    rec = pycolmap.Reconstruction(str(ws / "sparse" / "0"))
+    return {img.name: img.projection_center() for img in rec.images.values() if img.has_pose}
+
+
+def assert_same_model(a: Path, b: Path) -> None:
+    pa, pb = poses(a), poses(b)
+    assert sorted(pa) == sorted(pb)
+    ca = np.array([pa[n] for n in sorted(pa)])
+    cb = np.array([pb[n] for n in sorted(pb)])
+    spread = np.linalg.norm(ca - ca.mean(0), axis=1).mean()
+    assert np.abs(ca - cb).max() < 1e-6 * spread + 1e-9
+
+
+@pytest.mark.parametrize("stage", ["features", "matching"])
+def test_sigkill_then_rerun_gives_the_same_model(stage, small_scene, sparse_workspace, tmp_path):
+    ws = tmp_path / "ws"
+    if stage == "features":
+        proc = start_run(small_scene, ws)
+        kill_when(proc, lambda: features_done(ws) >= 3)
+        assert 3 <= features_done(ws) < 16, "the kill should land mid-stage"
+    else:
+        proc = start_run(small_scene, ws, "matching.chunk_pairs=5")
+        kill_when(proc, lambda: matched_pairs(ws) >= 5)
+        assert 5 <= matched_pairs(ws) < 120, "the kill should land mid-stage"
+    assert not (ws / "sparse").exists()
+    done = subprocess.run([sys.executable, "-m", "recon.cli", "run", str(SPARSE), "--images",
+                           str(small_scene / "images"), "--workspace", str(ws), "-o", "executor=serial"],
+                          capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "already done, resuming" in done.stderr
+    assert_same_model(ws, sparse_workspace)
