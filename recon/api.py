@@ -105,7 +105,9 @@ def last_log_file() -> Path | None:
 
 
 def evaluate(workspace: str | Path, gt: str | Path) -> dict:
-    """Pose figures of ``<workspace>/sparse/0`` against ground-truth cameras."""
+    """Figures of a workspace against ground truth: poses of ``sparse/0`` against the ground-truth
+    cameras; on a synthetic scene also accuracy/completeness of the fused cloud and the mesh, after
+    aligning the model to the ground truth by a robust similarity on the camera centres."""
     import pycolmap
 
     from recon.eval.groundtruth import load_cameras
@@ -115,7 +117,10 @@ def evaluate(workspace: str | Path, gt: str | Path) -> dict:
     model = ws / "sparse" / "0"
     if not (model / "images.bin").exists() and not (model / "images.txt").exists():
         raise WorkspaceError(f"{ws}: no sparse model at sparse/0; run the pipeline first")
-    gt_cams = load_cameras(Path(gt))
+    try:
+        gt_cams = load_cameras(Path(gt))
+    except (FileNotFoundError, ValueError) as exc:
+        raise ConfigError(f"--gt {gt}: {exc}") from None
     rec = pycolmap.Reconstruction(str(model))
     by_base = {Path(n).name: n for n in gt_cams}
     est = {}
@@ -127,15 +132,50 @@ def evaluate(workspace: str | Path, gt: str | Path) -> dict:
                 est[key] = (pose.rotation.matrix(), pose.translation)
     if not est:
         raise ConfigError(f"--gt {gt}: no image of the model has a ground-truth camera there (names differ?)")
-    return {"poses": pose_metrics(est, gt_cams)}
+    figures: dict = {"poses": pose_metrics(est, gt_cams)}
+    scene_file = Path(gt) / "gt" / "scene.json"
+    surfaces = [(key, ws / rel) for key, rel in (("fused", "dense/fused.ply"), ("mesh", "mesh.ply"))
+                if (ws / rel).exists()]
+    if scene_file.exists() and surfaces and len(est) >= 3:
+        figures.update(_surface_figures(est, gt_cams, Path(gt), surfaces))
+    return figures
+
+
+def _surface_figures(est: dict, gt_cams: dict, scene_dir: Path, surfaces: list) -> dict:
+    import numpy as np
+    import trimesh
+
+    from recon.eval.surface import surface_metrics
+    from recon.geometry.transforms import align_similarity, camera_center
+    from recon.synth import load_scene
+
+    names = sorted(est)
+    src = np.array([camera_center(*est[n]) for n in names])
+    dst = np.array([gt_cams[n].center for n in names])
+    sim, _ = align_similarity(src, dst, robust=True)
+    scene = load_scene(scene_dir)
+    out = {}
+    for key, path in surfaces:
+        geometry = trimesh.load(path, process=False)
+        geometry.vertices = sim.apply(np.asarray(geometry.vertices))
+        out[key] = surface_metrics(geometry, scene)
+    return out
 
 
 def format_eval(figures: dict) -> str:
     lines = []
     p = figures.get("poses")
     if p:
-        lines.append(f"registered {p['registered']}/{p['total']}   AUC@1/3/5 {p['auc@1']:.1f} / {p['auc@3']:.1f} / "
-                     f"{p['auc@5']:.1f}   median camera-centre error {p['median_center_error']:.4g}")
+        lines.append(f"poses    registered {p['registered']}/{p['total']}   AUC@1/3/5 {p['auc@1']:.1f} / "
+                     f"{p['auc@3']:.1f} / {p['auc@5']:.1f}   median camera-centre error "
+                     f"{p['median_center_error']:.4g} ({100 * p['median_center_error_rel']:.3f}% of scale)")
+    for key in ("fused", "mesh"):
+        m = figures.get(key)
+        if m:
+            taus = sorted(float(k.split("@")[1]) for k in m if k.startswith("fscore@"))
+            cells = "   ".join(f"@{100 * t:g}% of extent: accuracy {m[f'accuracy@{t:g}']:.1f} completeness "
+                               f"{m[f'completeness@{t:g}']:.1f} F {m[f'fscore@{t:g}'] / 100:.3f}" for t in taus)
+            lines.append(f"{key:<8} {cells}")
     return "\n".join(lines)
 
 

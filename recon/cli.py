@@ -66,6 +66,10 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--workspace", default="demo_workspace")
     d.add_argument("--config", default=None, help="pipeline config (default: pipelines/demo.yaml)")
 
+    w = sub.add_parser("view", help="serve a workspace's report.html on localhost and print its address")
+    w.add_argument("workspace")
+    w.add_argument("--port", type=int, default=8000, help="port on 127.0.0.1 (0 = any free port)")
+
     g = sub.add_parser("config", help="config tools")
     gsub = g.add_subparsers(dest="config_command", required=True)
     show = gsub.add_parser("show", help="print the resolved config with every default and its doc")
@@ -131,6 +135,8 @@ def _dispatch(args) -> int:
         figures = api.demo(args.workspace, args.config)
         print(api.format_eval(figures))
         return 0
+    if args.command == "view":
+        return _view(Path(args.workspace), args.port)
     if args.command == "config":
         cfg = api.load(args.config, overrides=args.override)
         print("\n".join(describe(cfg.run)))
@@ -139,6 +145,27 @@ def _dispatch(args) -> int:
             print("\n".join(describe(section, 1)))
         return 0
     raise AssertionError(args.command)
+
+
+def _view(workspace: Path, port: int) -> int:
+    from recon.report.serve import report_server
+
+    try:
+        server, url = report_server(workspace, port)
+    except FileNotFoundError:
+        raise WorkspaceError(f"{workspace}: no report.html; run the pipeline with the report stage "
+                             "(`until: report`, or `-o 'stages=[export, report]'`)") from None
+    except OSError as exc:
+        raise WorkspaceError(f"--port {port}: cannot listen on 127.0.0.1 ({exc.strerror}); "
+                             "choose another port") from None
+    print(f"recon: serving {workspace.absolute() / 'report.html'} at {url} (Ctrl-C to stop)", flush=True)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+    return 0
 
 
 def _print_stages() -> None:

@@ -31,12 +31,18 @@ class RunOptions:
     """The run's own keys (everything but the per-stage sections)."""
 
     images: str | None = opt(None, "folder of input photos (JPEG/PNG/TIFF); relative to the config file")
+    video: str | None = opt(None, "a video file to take keyframes from instead of `images` (see "
+                                  "ingest.keyframes); relative to the config file")
     workspace: str | None = opt(None, "output folder; relative to the config file")
     executor: str = opt("local", "where per-image/per-pair work runs: local | processes:N | "
                                  "dask://host:port | dask-local:N")
     seed: int = opt(0, "random seed for every stage that samples", ge=0)
     stages: list[str] = opt([], "stages to run, in order; empty = every stage up to `until`")
     until: str = opt("export", "last stage to run when `stages` is empty")
+
+    def __post_init__(self):
+        if self.images and self.video:
+            raise ConfigError("video: the input is either a photo folder (`images`) or a video (`video`), not both")
 
 
 # ---------------------------------------------------------------------------------------------

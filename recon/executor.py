@@ -11,6 +11,7 @@ import concurrent.futures as cf
 import multiprocessing
 import os
 import re
+import signal
 
 from recon.config import ConfigError
 
@@ -58,7 +59,7 @@ class Executor:
             # forkserver: workers start from a clean process, so threads the parent may hold
             # (BLAS, COLMAP's thread pools) cannot deadlock a forked child.
             ctx = multiprocessing.get_context("forkserver")
-            return cf.ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx)
+            return cf.ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx, initializer=_leave_sigint)
         from dask.distributed import Client, LocalCluster
 
         if self.spec.startswith("dask-local:"):
@@ -80,6 +81,13 @@ class Executor:
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
+
+
+def _leave_sigint() -> None:
+    """Pool workers ignore Ctrl-C (which the terminal sends to every process of the run): the main
+    process stops the run and the pool lets each worker finish its item, so no traceback is printed
+    and no item in flight is lost."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 class _SerialExecutor(cf.Executor):

@@ -9,6 +9,7 @@ option and exactly that stage and the stages after it run again (DESIGN.md, "A s
 from __future__ import annotations
 
 import dataclasses
+import errno
 import hashlib
 import json
 import logging
@@ -23,8 +24,9 @@ from typing import Any
 from recon import stages as _stages  # noqa: F401  (registers every stage)
 from recon.config import ConfigError, RunOptions, apply_overrides, build, read_yaml, to_dict
 from recon.executor import Executor, check_spec
+from recon.logs import native_stderr_to
 from recon.options import output_options
-from recon.stage import REGISTRY, StageContext
+from recon.stage import REGISTRY, StageContext, StageError
 from recon.workspace import HashCache, Workspace, WorkspaceError
 
 log = logging.getLogger("recon")
@@ -41,6 +43,10 @@ class RunConfig:
     @property
     def images(self) -> Path | None:
         return (self.base / self.run.images).resolve() if self.run.images else None
+
+    @property
+    def video(self) -> Path | None:
+        return (self.base / self.run.video).resolve() if self.run.video else None
 
     @property
     def workspace(self) -> Path:
@@ -73,7 +79,7 @@ def load_config(source: str | Path | dict | None = None, overrides: list[str] | 
         if key not in REGISTRY:
             from recon.config import _unknown_key_message
 
-            raise ConfigError(_unknown_key_message(key, key, sorted(run_keys | set(REGISTRY))))
+            raise ConfigError(_unknown_key_message(str(key), str(key), sorted(run_keys | set(REGISTRY))))
         sections[key] = value
     stage_cfgs = {name: build(stage.Config, sections.get(name), name) for name, stage in REGISTRY.items()}
     for name in [*run.stages, run.until]:
@@ -117,12 +123,13 @@ def plan(cfg: RunConfig, ws: Workspace) -> Plan:
     for name in order:
         stage = REGISTRY[name]
         probe = StageContext(name=name, out=Path(), workspace=ws, images=cfg.images, seed=cfg.run.seed,
-                             executor=None, config={"hashes": hashes})  # type: ignore[arg-type]
+                             executor=None,  # type: ignore[arg-type]
+                             config={"hashes": hashes, "base": cfg.base, "video": cfg.video})
         mat = {
             "stage": name,
             "version": stage.version,
             "config": to_dict(output_options(cfg.stages[name])),
-            "upstream": {dep: keys[dep] for dep in stage.requires},
+            "upstream": {dep: keys[dep] for dep in (*stage.requires, *stage.optional) if dep in keys},
             "seed": cfg.run.seed if stage.uses_seed else None,
             "fingerprint": stage.fingerprint(probe, cfg.stages[name]),
         }
@@ -184,7 +191,19 @@ def run(cfg: RunConfig, *, from_stage: str | None = None, until: str | None = No
                 if name in before:
                     raise ConfigError(f"--from {from_stage}: stage '{name}' before it has no complete "
                                       "output for this config; run without --from first")
-                outputs[name] = _run_stage(cfg, ws, name, key, p.material[name], outputs, executor, result)
+                try:
+                    outputs[name] = _run_stage(cfg, ws, name, key, p.material[name], outputs, executor, result)
+                except (ConfigError, StageError):
+                    raise
+                except Exception as exc:
+                    if not _out_of_space(ws, exc):
+                        raise
+                    log.debug("%s: failed on a full disk", name, exc_info=True)
+                    done = [n for n in order if n in outputs]
+                    raise WorkspaceError(
+                        f"{name}: the disk holding {ws.root} is full ({shutil.disk_usage(ws.root).free / 1e6:.1f} MB "
+                        f"free); completed stages are kept{f' (last: {done[-1]})' if done else ''}: free some "
+                        "space and run the same command again to resume") from exc
         finally:
             executor.shutdown()
         return result
@@ -195,11 +214,13 @@ def _run_stage(cfg: RunConfig, ws: Workspace, name: str, key: str, material: dic
     stage = REGISTRY[name]
     out = ws.begin(name, key)
     ctx = StageContext(name=name, out=out, workspace=ws, images=cfg.images, seed=cfg.run.seed,
-                       executor=executor, upstream={d: outputs[d] for d in stage.requires if d in outputs},
-                       config={"run": cfg.run, "stages": cfg.stages})
+                       executor=executor,
+                       upstream={d: outputs[d] for d in (*stage.requires, *stage.optional) if d in outputs},
+                       config={"run": cfg.run, "stages": cfg.stages, "base": cfg.base, "video": cfg.video})
     log.info("%s: running", name)
     start = time.time()
-    summary = stage.run(ctx, cfg.stages[name]) or {}
+    with native_stderr_to(ws.meta / "logs" / "native.log"):
+        summary = stage.run(ctx, cfg.stages[name]) or {}
     seconds = time.time() - start
     manifest = {
         "stage": name,
@@ -223,6 +244,24 @@ def _run_stage(cfg: RunConfig, ws: Workspace, name: str, key: str, material: dic
     result.seconds[name] = seconds
     result.summaries[name] = summary
     return final
+
+
+#: less free space than this after a failure means the disk is full: COLMAP's SQLite and model
+#: writers report a full disk vaguely ("No registered database factory succeeded") or not at all
+NEAR_FULL = 16 << 20
+
+
+def _out_of_space(ws: Workspace, exc: BaseException) -> bool:
+    """Whether ``exc`` came from a full disk: an ENOSPC/EDQUOT/EFBIG error in its chain, or almost no space left."""
+    cause: BaseException | None = exc
+    while cause is not None:
+        if isinstance(cause, OSError) and cause.errno in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG):
+            return True
+        cause = cause.__cause__ or cause.__context__
+    try:
+        return shutil.disk_usage(ws.root).free < NEAR_FULL
+    except OSError:
+        return False
 
 
 def _publish(ws: Workspace, name: str, out: Path) -> None:

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from recon.executor import Executor
+from recon.progress import Bar, bars_enabled
 from recon.workspace import Workspace
 
 
@@ -29,6 +30,8 @@ class Stage:
     version: ClassVar[int] = 1
     Config: ClassVar[type]
     requires: ClassVar[tuple[str, ...]] = ()
+    #: stages whose outputs it also reads when they are part of the run (their keys join its key)
+    optional: ClassVar[tuple[str, ...]] = ()
     outputs: ClassVar[tuple[str, ...]] = ()
     #: output-relative path -> workspace-relative link
     publish: ClassVar[dict[str, str]] = {}
@@ -93,9 +96,12 @@ class StageContext:
             self.log.info("%s: %d of %d already done, resuming", desc, len(items) - len(todo), len(items))
         progress = Progress(self.log, desc, len(todo))
         if len(todo) <= 1 or self.executor.spec == "serial":
-            for i in todo:
-                results[i] = fn(items[i])
-                progress.advance()
+            try:
+                for i in todo:
+                    results[i] = fn(items[i])
+                    progress.advance()
+            finally:
+                progress.close()
             return results
         pool = self.executor.pool
         futures = {pool.submit(fn, items[i]): i for i in todo}
@@ -104,6 +110,7 @@ class StageContext:
                 results[futures[future]] = future.result()
                 progress.advance()
         except BaseException:
+            progress.close()
             for future in futures:
                 future.cancel()
             raise
@@ -122,19 +129,30 @@ def _as_completed(futures):
 
 
 class Progress:
-    """Counts and ETA for long work, logged at most every few seconds."""
+    """Counts and ETA for long work: a progress bar on an interactive terminal (:mod:`recon.progress`),
+    else a log line at most every few seconds (CI logs, pipes, ``--quiet``, library use)."""
 
     def __init__(self, log: logging.Logger, desc: str, total: int, every: float = 5.0):
         self.log, self.desc, self.total, self.every = log, desc, total, every
         self.done = 0
         self.start = self.last = time.monotonic()
+        self.bar = Bar(desc, total) if bars_enabled() and total > 0 else None
 
     def advance(self, n: int = 1) -> None:
         self.done += n
+        if self.bar is not None:
+            self.bar.advance(n)
         now = time.monotonic()
         if self.done >= self.total or now - self.last >= self.every:
             self.last = now
             elapsed = now - self.start
             eta = elapsed / self.done * (self.total - self.done) if self.done else 0.0
             tail = f", ETA {eta:.0f} s" if self.done < self.total else f" in {elapsed:.1f} s"
-            self.log.info("%s: %d/%d%s", self.desc, self.done, self.total, tail)
+            # with a bar on screen the line goes to the log file only
+            level = logging.DEBUG if self.bar is not None else logging.INFO
+            self.log.log(level, "%s: %d/%d%s", self.desc, self.done, self.total, tail)
+
+    def close(self) -> None:
+        """Take the bar off the terminal if the work stopped early (an error)."""
+        if self.bar is not None:
+            self.bar.close()

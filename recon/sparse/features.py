@@ -14,6 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from recon.sparse.photos import stored_size
+
 #: extractor types that need pycolmap's ONNX build: on the CPU wheel they abort the whole process
 ONNX_ONLY = {"aliked", "aliked_n16", "aliked_n16rot", "aliked_n32", "aliked_t16", "loma", "superpoint",
              "disk", "lightglue"}
@@ -36,15 +38,28 @@ class SiftSettings:
 AUTO_UPSAMPLE_BELOW = 1200
 
 
+#: JPEG decoding at 1/8, 1/4, 1/2 scale (libjpeg's DCT scaling: cheap, and it averages like an area filter)
+_REDUCED = ((8, cv2.IMREAD_REDUCED_GRAYSCALE_8), (4, cv2.IMREAD_REDUCED_GRAYSCALE_4),
+            (2, cv2.IMREAD_REDUCED_GRAYSCALE_2))
+
+
 def load_gray(path: Path, max_size: int) -> tuple[np.ndarray, float, float]:
-    """The photo in 8-bit grey, downsized to ``max_size`` with area interpolation; and the scales."""
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    """The photo in 8-bit grey, downsized to ``max_size`` with area interpolation; and the scales.
+
+    A JPEG much larger than ``max_size`` is decoded at the largest 1/2, 1/4 or 1/8 reduction that
+    still exceeds ``max_size``, so a 12000 px photo never occupies memory at full size.
+    """
+    flag, (w, h) = cv2.IMREAD_GRAYSCALE, stored_size(path)
+    if max_size > 0 and path.suffix.lower() in (".jpg", ".jpeg"):
+        flag = next((f for k, f in _REDUCED if max(w, h) / k >= max_size), flag)
+    img = cv2.imread(str(path), flag)
     if img is None:
         raise OSError(f"{path}: cannot read image")
-    h, w = img.shape
-    scale = min(1.0, max_size / max(h, w)) if max_size > 0 else 1.0
+    if (img.shape[0] > img.shape[1]) != (h > w):  # OpenCV applied an EXIF rotation
+        w, h = h, w
+    scale = min(1.0, max_size / max(img.shape)) if max_size > 0 else 1.0
     if scale < 1.0:
-        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        size = (max(1, round(img.shape[1] * scale)), max(1, round(img.shape[0] * scale)))
         img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
     return np.ascontiguousarray(img), w / img.shape[1], h / img.shape[0]
 

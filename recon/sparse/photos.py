@@ -73,6 +73,17 @@ def inspect_photo(path: Path, name: str) -> PhotoInfo:
                      needs_copy=mode not in ("L", "RGB") or orientation not in (0, 1))
 
 
+def stored_size(path: Path) -> tuple[int, int]:
+    """(width, height) as stored (before EXIF rotation), from the file's header: no pixel is decoded."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with Image.open(path) as img:
+                return img.size
+    except (UnidentifiedImageError, OSError) as exc:
+        raise PhotoError(f"{path}: cannot read image ({exc}); remove or replace the file") from None
+
+
 def _exif_focal_px(exif: Image.Exif, width: int, height: int) -> float | None:
     """Focal length in pixels from EXIF: the 35 mm equivalent, else focal / sensor resolution."""
     sub = exif.get_ifd(_EXIF_IFD) if hasattr(exif, "get_ifd") else {}

@@ -1,10 +1,22 @@
 """One module per stage; importing this package registers them, in pipeline order."""
 
 from recon.stage import REGISTRY
-from recon.stages import export, features, ingest, matching, sfm  # noqa: F401  (registers them)
+from recon.stages import (  # noqa: F401  (registers them)
+    calibrate,
+    export,
+    features,
+    fusion,
+    ingest,
+    matching,
+    mvs,
+    preprocess,
+    report,
+    sfm,
+    undistort,
+)
 
 #: the order stages run in; a stage reads only from stages before it
-ORDER = ["ingest", "features", "matching", "sfm", "export"]
+ORDER = ["ingest", "calibrate", "preprocess", "features", "matching", "sfm", "export", "undistort", "mvs", "fusion", "report"]
 
 for _name in ORDER:  # re-insert in pipeline order (imports are sorted alphabetically)
     REGISTRY[_name] = REGISTRY.pop(_name)

@@ -1,4 +1,8 @@
-"""features: SIFT keypoints and descriptors of every photo (COLMAP's SIFT, via pycolmap), into database.db."""
+"""features: SIFT keypoints and descriptors of every photo (COLMAP's SIFT, via pycolmap), into database.db.
+
+Reads preprocess's images (every 2D operation applied) and cameras (intrinsics of those pixels; a
+calibration's parameters as given); keypoints where preprocess's mask is zero are dropped.
+"""
 
 from __future__ import annotations
 
@@ -6,12 +10,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from recon.config import ConfigError
+from recon.imaging.masks import inside_mask, load_mask
 from recon.logs import quiet_colmap
 from recon.options import opt
-from recon.sparse.database import write_database
+from recon.sparse.database import opened, write_database
 from recon.sparse.features import ONNX_ONLY, SiftSettings, extract_sift, load_features, save_features
 from recon.stage import Stage, StageContext, register
-from recon.workspace import read_json
+from recon.workspace import read_json, write_json
 
 
 @dataclass(frozen=True)
@@ -43,10 +48,14 @@ class FeaturesConfig:
                             self.upright, self.darkness_adaptivity)
 
 
-def _extract_one(task: tuple[Path, Path, SiftSettings]) -> int:
-    source, dest, settings = task
+def _extract_one(task: tuple[Path, Path, SiftSettings, Path | None]) -> int:
+    source, dest, settings, mask_dir = task
     quiet_colmap()  # a worker process: COLMAP's info lines would flood the terminal
     keypoints, descriptors = extract_sift(source, settings)
+    mask = load_mask(mask_dir, dest.name.removesuffix(".npz")) if mask_dir is not None else None
+    if mask is not None:
+        keep = inside_mask(mask, keypoints[:, :2])
+        keypoints, descriptors = keypoints[keep], descriptors[keep]
     save_features(dest, keypoints, descriptors)
     return len(keypoints)
 
@@ -56,26 +65,52 @@ class Features(Stage):
     name = "features"
     version = 1
     Config = FeaturesConfig
-    requires = ("ingest",)
-    outputs = ("features/<image>.npz", "database.db")
+    requires = ("preprocess",)
+    outputs = ("features/<image>.npz", "database.db", "images.json")
     publish = {"database.db": "database.db"}
     summary = "SIFT features per photo, written into COLMAP's database.db"
 
     def run(self, ctx: StageContext, cfg: FeaturesConfig) -> dict:
-        ingest = ctx.input("ingest")
-        listing = read_json(ingest / "images.json")
+        preprocess = ctx.input("preprocess")
+        listing = read_json(preprocess / "images.json")
         settings = cfg.settings()
-        tasks = [(ingest / "images" / img["name"], ctx.out / "features" / f"{img['name']}.npz", settings)
-                 for img in listing["images"]]
+        masks = preprocess / "masks"
+        tasks = [(preprocess / "images" / img["name"], ctx.out / "features" / f"{img['name']}.npz", settings,
+                  (masks / img["name"]).parent if img.get("masked") else None) for img in listing["images"]]
         ctx.map(_extract_one, tasks, desc="features", done=lambda t: t[1].is_file())
         counts = []
 
         def features():
-            for img, (_, npz, _) in zip(listing["images"], tasks):
+            for img, (_, npz, _, _) in zip(listing["images"], tasks):
                 keypoints, descriptors = load_features(npz)
                 counts.append(len(keypoints))
                 yield img["name"], keypoints, descriptors
 
         write_database(ctx.out / "database.db", listing["cameras"], listing["images"], features())
+        _set_camera_params(ctx.out / "database.db", listing)
+        write_json(ctx.out / "images.json", listing)  # what the database holds, for matching (``ordered``)
         return {"images": len(counts), "median_features": int(sorted(counts)[len(counts) // 2]),
                 "min_features": int(min(counts))}
+
+
+def _set_camera_params(database: Path, listing: dict) -> None:
+    """Give the database's cameras preprocess's parameters (principal point, distortion of a calibration).
+
+    Cameras of a calibration used as ``fixed`` or a prior are marked as having a known focal length,
+    so COLMAP neither re-estimates nor refines it when it registers their first image.
+    """
+    import pycolmap
+
+    cameras = {c["id"]: c for c in listing["cameras"]}
+    by_name = {img["name"]: img["camera"] for img in listing["images"]}
+    with opened(database) as db:
+        done = set()
+        for image in db.read_all_images():
+            if image.camera_id in done:
+                continue
+            done.add(image.camera_id)
+            cam = cameras[by_name[image.name]]
+            camera = pycolmap.Camera(model=cam["model"], width=cam["width"], height=cam["height"],
+                                     params=cam["params"], camera_id=image.camera_id)
+            camera.has_prior_focal_length = bool(cam["prior_focal"])
+            db.update_camera(camera)

@@ -1,12 +1,20 @@
-"""ingest: a folder of photos -> a checked image list with camera groups and EXIF focal priors."""
+"""ingest: a folder of photos (or a video's keyframes) -> a checked image list with camera groups and
+EXIF focal priors.
+
+A video (``video:`` instead of ``images:``) becomes keyframes (:mod:`recon.imaging.video`: sharp
+frames spread by optical-flow parallax) written into ``images/``; the list is then marked
+``"ordered": true`` so matching pairs the frames sequentially.
+"""
 
 from __future__ import annotations
 
 import os
 from collections import defaultdict
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Literal
 
+from recon.imaging.video import KeyframeOptions, extract_keyframes
 from recon.options import opt
 from recon.sparse.photos import PhotoError, inspect_photo, list_photos, normalized_copy
 from recon.stage import Stage, StageContext, StageError, register
@@ -21,15 +29,25 @@ class IngestConfig:
         "SIMPLE_RADIAL", "COLMAP camera model fitted by bundle adjustment")
     default_focal_factor: float = opt(1.2, "focal = factor x max(width, height) when EXIF has none", gt=0)
     skip_unreadable: bool = opt(True, "skip corrupt/empty photos with a warning instead of stopping")
+    keyframes: KeyframeOptions = opt(KeyframeOptions(), "video input: how keyframes are chosen")
 
 
-def _photo_name(ctx: StageContext, path) -> str:
-    return path.relative_to(ctx.images).as_posix()
+def input_path(ctx: StageContext, value: str) -> Path:
+    """A path from the config, relative to the config file's folder."""
+    return (Path(ctx.config["base"]) / value).resolve()
+
+
+def _video(ctx: StageContext) -> Path | None:
+    video = ctx.config.get("video")
+    if video is not None and not Path(video).is_file():
+        raise StageError(f"video: {video} is not a file; give the path of the video to take frames from")
+    return video
 
 
 def _images_folder(ctx: StageContext):
     if ctx.images is None:
-        raise StageError("images: no photo folder given; set `images:` in the config or pass --images DIR")
+        raise StageError("images: no photo folder given; set `images:` (or `video:`) in the config or pass "
+                         "--images DIR")
     if not ctx.images.is_dir():
         raise StageError(f"images: {ctx.images} is not a folder; pass the folder that holds the photos")
     return ctx.images
@@ -45,13 +63,21 @@ class Ingest(Stage):
     summary = "check the photos, group them into cameras, read EXIF focal lengths"
 
     def fingerprint(self, ctx: StageContext, cfg: IngestConfig):
+        video = _video(ctx)
+        if video is not None:
+            return [[video.name, ctx.config["hashes"].digest(video)]]
         folder = _images_folder(ctx)
         photos, _ = list_photos(folder)
         hashes = ctx.config["hashes"]
-        return [[_photo_name(ctx, p), hashes.digest(p)] for p in photos]
+        return [[p.relative_to(folder).as_posix(), hashes.digest(p)] for p in photos]
 
     def run(self, ctx: StageContext, cfg: IngestConfig) -> dict:
-        folder = _images_folder(ctx)
+        video = _video(ctx)
+        if video is not None:
+            folder = ctx.out / "images"
+            extract_keyframes(video, folder, cfg.keyframes)
+        else:
+            folder = _images_folder(ctx)
         photos, others = list_photos(folder)
         if others:
             shown = ", ".join(p.name for p in others[:5]) + (" ..." if len(others) > 5 else "")
@@ -61,28 +87,18 @@ class Ingest(Stage):
         infos, bad = [], []
         for path in photos:
             try:
-                infos.append((path, inspect_photo(path, _photo_name(ctx, path))))
+                infos.append((path, inspect_photo(path, path.relative_to(folder).as_posix())))
             except PhotoError as exc:
                 if not cfg.skip_unreadable:
                     raise StageError(str(exc)) from None
                 ctx.log.warning("skipped: %s", exc)
                 bad.append(str(exc))
         if len(infos) < 2:
+            if video is not None:
+                raise StageError(f"video: {video.name} gave {len(infos)} keyframe(s); reconstruction needs at "
+                                 "least 2: lower ingest.keyframes.min_parallax, or film more motion")
             raise StageError(f"images: {folder} has {len(infos)} readable photo(s); reconstruction needs at least 2")
-        out_images = ctx.out / "images"
-        out_images.mkdir(exist_ok=True)
-        copies = 0
-        for path, info in infos:
-            dest = out_images / info.name
-            if info.needs_copy:
-                if not dest.exists() or dest.is_symlink():
-                    normalized_copy(path, dest)
-                copies += 1
-            else:
-                dest.parent.mkdir(parents=True, exist_ok=True)
-                if dest.is_symlink() or dest.exists():
-                    dest.unlink()
-                os.symlink(path.resolve(), dest)
+        copies = _place_photos(ctx.out / "images", infos) if video is None else 0  # keyframes are there
         cameras, image_camera = _group_cameras([i for _, i in infos], cfg)
         duplicates = _duplicates(ctx, [(p, i.name) for p, i in infos])
         for group in duplicates:
@@ -93,10 +109,30 @@ class Ingest(Stage):
             "cameras": cameras,
             "skipped": [str(p) for p in others] + bad,
             "duplicates": duplicates,
+            "ordered": video is not None,
         })
         with_exif = sum(1 for _, i in infos if i.focal_px)
         return {"images": len(infos), "cameras": len(cameras), "exif_focal": with_exif,
-                "converted": copies, "skipped": len(others) + len(bad), "duplicates": len(duplicates)}
+                "converted": copies, "skipped": len(others) + len(bad), "duplicates": len(duplicates),
+                "ordered": video is not None}
+
+
+def _place_photos(out_images: Path, infos) -> int:
+    """Link each photo into ``out_images``, or write its upright 8-bit copy; returns the copies made."""
+    out_images.mkdir(exist_ok=True)
+    copies = 0
+    for path, info in infos:
+        dest = out_images / info.name
+        if info.needs_copy:
+            if not dest.exists() or dest.is_symlink():
+                normalized_copy(path, dest)
+            copies += 1
+        else:
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            if dest.is_symlink() or dest.exists():
+                dest.unlink()
+            os.symlink(path.resolve(), dest)
+    return copies
 
 
 def _group_cameras(infos, cfg: IngestConfig) -> tuple[list[dict], dict[str, int]]:

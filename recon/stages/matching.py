@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,12 +13,14 @@ from recon.options import opt
 from recon.sparse import pairs as pairing
 from recon.sparse.database import opened
 from recon.stage import Progress, Stage, StageContext, StageError, register
+from recon.workspace import read_json
 
 
 @dataclass(frozen=True)
 class MatchingConfig:
     method: Literal["auto", "exhaustive", "sequential", "retrieval", "spatial"] = opt(
-        "auto", "pair selection; auto = exhaustive up to `exhaustive_max` photos, else retrieval")
+        "auto", "pair selection; auto = sequential for video frames, else exhaustive up to `exhaustive_max` "
+                "photos, else retrieval")
     exhaustive_max: int = opt(60, "auto: largest photo count matched exhaustively", ge=2)
     overlap: int = opt(10, "sequential: match each frame with this many following frames", ge=1)
     loop_detection: bool = opt(True, "sequential: also match frames that look alike (loop closure)")
@@ -51,12 +55,16 @@ def _options(cfg: MatchingConfig, seed: int):
     return mo, vo
 
 
-def choose_pairs(cfg: MatchingConfig, database: Path, names: list[str], seed: int) -> tuple[str, list]:
-    """The method actually used and the pairs (indices into ``names``) to match."""
+def choose_pairs(cfg: MatchingConfig, database: Path, names: list[str], seed: int,
+                 ordered: bool = False) -> tuple[str, list]:
+    """The method actually used and the pairs (indices into ``names``) to match.
+
+    ``ordered``: the images are frames in capture order (a video), so ``auto`` matches sequentially.
+    """
     n = len(names)
     method = cfg.method
     if method == "auto":
-        method = "exhaustive" if n <= cfg.exhaustive_max else "retrieval"
+        method = "sequential" if ordered else "exhaustive" if n <= cfg.exhaustive_max else "retrieval"
     if method == "exhaustive":
         return method, pairing.exhaustive_pairs(n)
     if method == "spatial":
@@ -94,6 +102,7 @@ class Matching(Stage):
 
         database = ctx.out / "database.db"
         if database.exists():  # an interrupted run's database: COLMAP skips the pairs already in it
+            _set_names(database, _names_by_id(ctx.input("features") / "database.db"))  # aliases of a kill
             with opened(database) as db:
                 ctx.log.info("matching: %d pairs already done, resuming", db.num_matched_image_pairs())
         else:
@@ -101,7 +110,8 @@ class Matching(Stage):
             shutil.copyfile(ctx.input("features") / "database.db", tmp)
             tmp.replace(database)
         names = _names(database)
-        method, pairs = choose_pairs(cfg, database, names, ctx.seed)
+        listing = read_json(ctx.input("features") / "images.json") or {}
+        method, pairs = choose_pairs(cfg, database, names, ctx.seed, bool(listing.get("ordered")))
         mo, vo = _options(cfg, ctx.seed)
         if method == "spatial":
             with opened(database) as db:
@@ -125,16 +135,54 @@ def _match_pairs(ctx: StageContext, database: Path, named: list[tuple[str, str]]
 
     (ctx.out / "pairs.txt").write_text("".join(f"{a} {b}\n" for a, b in named))
     progress = Progress(ctx.log, "matching pairs", len(named))
-    for start in range(0, len(named), chunk):
-        part = named[start:start + chunk]
-        listing = ctx.out / ".chunk.txt"
-        listing.write_text("".join(f"{a} {b}\n" for a, b in part))
-        po = pycolmap.ImportedPairingOptions()
-        po.match_list_path = str(listing)
-        # COLMAP skips pairs already in the database, so a resumed run continues where it stopped
-        pycolmap.match_image_pairs(str(database), mo, po, vo, device=pycolmap.Device.cpu)
-        progress.advance(len(part))
+    names = _names_by_id(database)
+    # COLMAP reads a pair list as "name1 name2" lines split at spaces ('#' starts a comment): photos
+    # named so go by an alias while matching; no photo is named like it (ingest skips hidden paths)
+    alias = {name: f".recon-alias/{i}" if name.startswith("#") or any(c.isspace() for c in name) else name
+             for i, name in names.items()}
+    with opened(database) as db:
+        keypoints = {name: db.num_keypoints_for_image(i) for i, name in names.items()}
+    _set_names(database, {i: alias[name] for i, name in names.items()})
+    try:
+        for start in range(0, len(named), chunk):
+            part = named[start:start + chunk]
+            _check_space(ctx, database, part, keypoints)
+            listing = ctx.out / ".chunk.txt"
+            listing.write_text("".join(f"{alias[a]} {alias[b]}\n" for a, b in part))
+            po = pycolmap.ImportedPairingOptions()
+            po.match_list_path = str(listing)
+            # COLMAP skips pairs already in the database, so a resumed run continues where it stopped
+            pycolmap.match_image_pairs(str(database), mo, po, vo, device=pycolmap.Device.cpu)
+            progress.advance(len(part))
+    finally:
+        _set_names(database, names)
     (ctx.out / ".chunk.txt").unlink(missing_ok=True)
+
+
+def _check_space(ctx: StageContext, database: Path, part: list[tuple[str, str]], keypoints: dict[str, int]) -> None:
+    """Refuse to match ``part`` unless the disk can hold what COLMAP may write for it: on a full disk
+    COLMAP's matcher threads abort the whole process. Bound: raw and verified matches of 8 bytes,
+    at most the smaller keypoint count of a pair each, doubled for SQLite's journal, plus 4 MiB."""
+    need = 2 * sum(16 * min(keypoints[a], keypoints[b]) for a, b in part) + (4 << 20)
+    free = shutil.disk_usage(database.parent).free
+    if free < need:
+        ctx.log.warning("matching: the next %d pairs may need %.0f MB; %.1f MB are free", len(part),
+                        need / 1e6, free / 1e6)
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(database.parent))
+
+
+def _names_by_id(database: Path) -> dict[int, str]:
+    with opened(database) as db:
+        return {img.image_id: img.name for img in db.read_all_images()}
+
+
+def _set_names(database: Path, names: dict[int, str]) -> None:
+    """Rename the database's images to ``names`` (image id -> name) where they differ."""
+    with opened(database) as db:
+        for image in db.read_all_images():
+            if image.name != names[image.image_id]:
+                image.name = names[image.image_id]
+                db.update_image(image)
 
 
 def _inlier_counts(database: Path) -> list[int]:

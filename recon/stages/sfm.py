@@ -1,14 +1,18 @@
-"""sfm: camera poses and sparse points from verified matches (COLMAP's incremental or global mapper)."""
+"""sfm: camera poses and sparse points from verified matches (COLMAP's incremental or global mapper).
+
+Cameras come from the database (preprocess's intrinsics); when they are a calibration used as
+``fixed`` (calibrate.use), bundle adjustment refines no intrinsics.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 from recon.options import opt
 from recon.sparse import mapping
 from recon.stage import Stage, StageContext, StageError, register
-from recon.workspace import write_json
+from recon.workspace import read_json, write_json
 
 
 @dataclass(frozen=True)
@@ -33,7 +37,7 @@ class Sfm(Stage):
     name = "sfm"
     version = 1
     Config = SfmConfig
-    requires = ("ingest", "matching")
+    requires = ("preprocess", "matching")
     outputs = ("sparse/<k>/{cameras,images,points3D}.bin", "models.json")
     publish = {"sparse": "sparse"}
     uses_seed = True
@@ -41,7 +45,11 @@ class Sfm(Stage):
 
     def run(self, ctx: StageContext, cfg: SfmConfig) -> dict:
         database = ctx.input("matching") / "database.db"
-        images = ctx.input("ingest") / "images"
+        images = ctx.input("preprocess") / "images_geometric"  # original colours for the points
+        cameras = read_json(ctx.input("preprocess") / "images.json")["cameras"]
+        if cameras and all(c["fixed"] for c in cameras):
+            ctx.log.info("sfm: calibrated cameras kept fixed")
+            cfg = replace(cfg, refine_focal_length=False, refine_principal_point=False, refine_extra_params=False)
         models = mapping.reconstruct(database, images, cfg, ctx.seed)
         report = mapping.registration_report(database, models, cfg.min_num_matches)
         if not models:

@@ -38,7 +38,7 @@ def test_matching_option_reruns_matching_and_what_follows(copy_workspace, small_
     result = recon.run(SPARSE, images=str(small_scene / "images"), workspace=str(copy_workspace),
                        matching={"max_ratio": 0.75})
     assert result.ran == ["matching", "sfm", "export"]
-    assert result.cached == ["ingest", "features"]
+    assert result.cached == ["ingest", "calibrate", "preprocess", "features"]
     runs = stage_runs(copy_workspace)
     assert runs["ingest"] == 1 and runs["features"] == 1
     assert runs["matching"] == 2 and runs["sfm"] == 2 and runs["export"] == 2
@@ -69,7 +69,7 @@ def test_changed_photo_invalidates_ingest(tmp_path, small_scene):
     shutil.copytree(small_scene / "images", images)
     ws = tmp_path / "ws"
     first = recon.run({"until": "features"}, images=str(images), workspace=str(ws))
-    assert first.ran == ["ingest", "features"]
+    assert first.ran == ["ingest", "calibrate", "preprocess", "features"]
     data = bytearray((images / "view_003.jpg").read_bytes())
     data[len(data) // 2] ^= 0x01  # same name and size, other content
     (images / "view_003.jpg").write_bytes(bytes(data))

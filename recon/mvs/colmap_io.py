@@ -1,0 +1,70 @@
+"""Read and write COLMAP dense depth and normal maps (``stereo/{depth,normal}_maps/*.bin``).
+
+The format is an ASCII header ``W&H&C&`` followed by little-endian float32 values stored channel by
+channel: COLMAP's ``Mat<float>`` keeps ``data[c * H * W + row * W + col]``. A depth map (C = 1) is
+therefore plain row-major H x W; a normal map (C = 3) is three H x W planes, which this module turns
+into the H x W x 3 arrays recon uses. Depth is camera z (0 = no depth); normals are unit vectors in the
+camera frame, facing the camera (0 vector = no normal).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def read_map(path: str | os.PathLike) -> np.ndarray:
+    """A COLMAP ``.bin`` map as float32: H x W when it has one channel, else H x W x C."""
+    data = Path(path).read_bytes()
+    fields, pos = [], 0
+    for _ in range(3):
+        end = data.index(b"&", pos)
+        fields.append(int(data[pos:end]))
+        pos = end + 1
+    width, height, channels = fields
+    values = np.frombuffer(data, dtype="<f4", count=width * height * channels, offset=pos)
+    planes = values.reshape(channels, height, width).astype(np.float32)
+    return planes[0] if channels == 1 else np.ascontiguousarray(planes.transpose(1, 2, 0))
+
+
+def write_map(path: str | os.PathLike, array: np.ndarray) -> Path:
+    """Write an H x W (depth) or H x W x C (normal) array in COLMAP's format, atomically."""
+    array = np.asarray(array, dtype=np.float32)
+    if array.ndim == 2:
+        array = array[:, :, None]
+    if array.ndim != 3:
+        raise ValueError(f"expected an H x W or H x W x C array, got shape {array.shape}")
+    height, width, channels = array.shape
+    header = f"{width}&{height}&{channels}&".encode("ascii")
+    payload = np.ascontiguousarray(array.transpose(2, 0, 1)).astype("<f4").tobytes()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(header)
+            handle.write(payload)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def read_depth_map(path: str | os.PathLike) -> np.ndarray:
+    """An H x W float32 depth map (camera z; 0 where there is none)."""
+    depth = read_map(path)
+    if depth.ndim != 2:
+        raise ValueError(f"{path}: expected one channel, got {depth.shape[2]}")
+    return depth
+
+
+def read_normal_map(path: str | os.PathLike) -> np.ndarray:
+    """An H x W x 3 float32 normal map (camera frame, facing the camera)."""
+    normals = read_map(path)
+    if normals.ndim != 3 or normals.shape[2] != 3:
+        raise ValueError(f"{path}: expected three channels, got shape {normals.shape}")
+    return normals

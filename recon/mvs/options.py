@@ -1,0 +1,41 @@
+"""Options of recon's CPU PatchMatch multi-view stereo."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from recon.options import opt
+
+
+@dataclass(frozen=True)
+class MVSOptions:
+    """Depth and normal map estimation (PatchMatch) and its consistency filtering."""
+
+    max_image_size: int = opt(1536, "longest side of the images depth maps are computed at (px); larger ones are downscaled", ge=32)
+    max_sources: int = opt(8, "most source views per reference view", ge=1, le=32)
+    top_k: int = opt(3, "the matching cost of a hypothesis is the mean over its K best source views", ge=1, le=32)
+    min_triangulation_angle: float = opt(3.0, "source views whose shared points are seen under a smaller angle (deg) do not count", ge=0.0, le=45.0)
+    max_scale_ratio: float = opt(2.0, "source views seeing the shared points at a resolution differing by more than this factor are skipped", ge=1.0)
+    depth_margin: float = opt(0.25, "depth range: 1st percentile of the sparse point depths / (1 + margin) to the 99th * (1 + margin)", ge=0.0, le=4.0)
+    window_radius: int = opt(5, "half size of the matching window (px at the working level)", ge=1, le=15)
+    window_step: int = opt(2, "sampling stride inside the matching window (px); 2 reads a quarter of its pixels", ge=1, le=4)
+    sigma_color: float = opt(0.2, "bilateral weight: intensity scale (intensities in [0, 1])", gt=0.0)
+    sigma_spatial: float = opt(0.0, "bilateral weight: distance scale (px); 0 means the window radius", ge=0.0)
+    min_texture: float = opt(0.005, "pixels whose weighted intensity standard deviation in the window is below this get no depth", ge=0.0)
+    pyramid_levels: int = opt(4, "most coarse-to-fine levels (1 = single scale); each halves the resolution", ge=1, le=8)
+    pyramid_min_size: int = opt(160, "a coarser level is added only while its longest side stays >= this (px)", ge=16)
+    iterations: int = opt(6, "propagation+refinement sweeps at the coarsest level (random start)", ge=1, le=50)
+    upper_iterations: int = opt(2, "sweeps at each intermediate level, starting from the upsampled coarser planes", ge=0, le=50)
+    fine_iterations: int = opt(1, "sweeps at the finest (full working resolution) level", ge=0, le=50)
+    view_subset: bool = opt(True, "above the coarsest level, match each pixel only against the top_k views best for its upsampled plane")
+    perturbation: float = opt(0.1, "initial refinement range: relative depth change and normal change (rad/pi); halves every sweep", gt=0.0, le=1.0)
+    geometric: bool = opt(True, "run the geometric-consistency pass (photometric + reprojection cost) before filtering")
+    geometric_iterations: int = opt(2, "sweeps of the geometric-consistency pass", ge=0, le=50)
+    geometric_weight: float = opt(0.2, "weight of the reprojection error (px) in the geometric-consistency cost", ge=0.0)
+    geometric_max_error: float = opt(3.0, "reprojection errors are capped at this value (px) inside the cost", gt=0.0)
+    filter_max_cost: float = opt(0.6, "filtering: largest matching cost (1 - NCC, mean of the K best views) kept", gt=0.0, le=2.0)
+    filter_min_consistent: int = opt(2, "filtering: a pixel is kept when at least this many source depth maps agree with it", ge=0)
+    filter_max_reprojection: float = opt(1.0, "filtering: largest forward-backward reprojection error (px) for a source to agree", gt=0.0)
+    filter_max_depth_error: float = opt(0.01, "filtering: largest relative depth difference for a source to agree", gt=0.0)
+    num_threads: int = opt(0, "CPU threads for the kernels (0 = all cores)", ge=0)
+    seed: int = opt(0, "random seed; results are identical for equal seeds and inputs, whatever the thread count", ge=0)

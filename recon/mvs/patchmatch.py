@@ -1,0 +1,810 @@
+"""PatchMatch multi-view stereo on the CPU: per-pixel slanted planes estimated by numba kernels.
+
+The variant follows Gipuma (Galliani et al., ICCV 2015) and ACMH/ACMM (Xu and Tao, CVPR 2019):
+
+* every reference pixel holds a plane hypothesis, a depth (camera z) and a unit normal in the reference
+  camera frame facing the camera, initialised at random (depth uniform in inverse depth);
+* red-black checkerboard sweeps: one colour is updated while it reads only the other, so a sweep is
+  parallel over rows and its result does not depend on the thread count;
+* propagation uses ACMH's adaptive checkerboard sampling: four V-shaped near regions and four long
+  far strips around the pixel; from each region the neighbour with the lowest current cost is taken
+  and its plane is tested at the pixel (the plane is intersected with the pixel's ray, as in Gipuma);
+* refinement tests perturbed depth/normal combinations (and, at the coarsest level, random ones), the
+  perturbation range halving every sweep (Gipuma, ACMM);
+* the photometric cost is 1 - NCC with bilateral weights (COLMAP, ACMM) over a window sampled with a
+  stride (ACMM's 11 x 11 window read every second pixel), warped to each source view through the
+  plane-induced homography;
+* multi-view aggregation is the mean of the K best source costs (Gipuma's "best K"); this departs from
+  ACMM's probabilistic per-pixel view-selection weights, which cost more per hypothesis;
+* coarse to fine (ACMM's multi-scale scheme without its detail restorer): each finer level starts from
+  the coarser planes re-intersected with its own pixel rays, then runs a few sweeps;
+* geometric consistency (COLMAP's geom_consistency, ACMM's ACMM+geom): a second pass adds to each
+  source's cost the capped forward-backward reprojection error through that source's depth map;
+* filtering keeps a pixel when its photometric cost is low and enough source depth maps agree with it
+  (reprojection error and relative depth difference below thresholds).
+
+The kernels are plain loops over arrays (no Python objects inside), and random numbers come from a
+counter-based hash of (seed, sweep, pixel), so the same code can be ported to numba-cuda.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numba import njit, prange
+
+from recon.mvs.options import MVSOptions
+
+log = logging.getLogger(__name__)
+
+MAX_COST = 2.0
+ALL_VIEWS, SELECT_VIEWS, KEEP_VIEWS = 0, 1, 2  # view-mask modes of evaluate()
+_MIN_COS = 0.05  # hypotheses whose plane is seen at a grazing angle (|cos| below this) are rejected
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole view at the resolution of its image array: x_cam = R @ X + t, pixel = K @ x_cam / z."""
+
+    K: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+
+    def scaled(self, sx: float, sy: float) -> Camera:
+        """The same view for an image resized by (sx, sy): exact with the pixel-centre-at-0.5 convention."""
+        return Camera(np.diag([sx, sy, 1.0]) @ self.K, self.R, self.t)
+
+
+@dataclass(frozen=True)
+class ViewGeometry:
+    """Arrays the kernels use to move between the reference view and each source view s.
+
+    A source pixel of a reference pixel p on the plane (n, d) is ~ (A[s] + b[s] m^T) p with
+    m = K_ref^-T n / (n . X); a source pixel q with source depth z maps back to ~ z M[s] q + c[s].
+    """
+
+    kinv: np.ndarray  # (3, 3) inverse reference intrinsics
+    A: np.ndarray  # (S, 3, 3) K_s R_rs K_ref^-1
+    b: np.ndarray  # (S, 3) K_s t_rs
+    M: np.ndarray  # (S, 3, 3) K_ref R_rs^T K_s^-1
+    c: np.ndarray  # (S, 3) -K_ref R_rs^T t_rs
+
+
+def view_geometry(ref: Camera, sources: list[Camera]) -> ViewGeometry:
+    """Relative geometry of each source view seen from the reference view."""
+    kinv = np.linalg.inv(ref.K)
+    A, b, M, c = [], [], [], []
+    for src in sources:
+        R_rs = src.R @ ref.R.T
+        t_rs = src.t - R_rs @ ref.t
+        A.append(src.K @ R_rs @ kinv)
+        b.append(src.K @ t_rs)
+        M.append(ref.K @ R_rs.T @ np.linalg.inv(src.K))
+        c.append(-ref.K @ R_rs.T @ t_rs)
+    return ViewGeometry(kinv, np.array(A), np.array(b), np.array(M), np.array(c))
+
+
+def stack_images(images: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Zero-padded (S, H, W) float32 stack and the (S, 2) int32 (width, height) of each image."""
+    height = max(im.shape[0] for im in images)
+    width = max(im.shape[1] for im in images)
+    stack = np.zeros((len(images), height, width), np.float32)
+    dims = np.zeros((len(images), 2), np.int32)
+    for i, im in enumerate(images):
+        stack[i, : im.shape[0], : im.shape[1]] = im
+        dims[i] = (im.shape[1], im.shape[0])
+    return stack, dims
+
+
+def window_grid(radius: int, step: int) -> np.ndarray:
+    """The matching window as int64 (start, step, count): samples at offsets start + i * step
+    (i < count) on both axes, symmetric about the pixel."""
+    ticks = np.arange(-radius, radius + 1, step)
+    ticks = ticks - (ticks[0] + ticks[-1]) // 2
+    return np.array([ticks[0], step, len(ticks)], np.int64)
+
+
+def _region_offsets() -> tuple[np.ndarray, np.ndarray]:
+    """ACMH's adaptive checkerboard regions: 4 V-shaped near regions and 4 far strips, opposite colour."""
+    near = [(0, -1)] + [(sx * i, -(1 + i)) for i in (1, 2, 3) for sx in (-1, 1)]
+    far = [(0, -(3 + 2 * i)) for i in range(11)]
+    offsets = np.zeros((8, 11, 2), np.int32)
+    counts = np.zeros(8, np.int32)
+    for r, (pattern, rotation) in enumerate([(p, k) for p in (near, far) for k in range(4)]):
+        for i, (dx, dy) in enumerate(pattern):
+            for _ in range(rotation):  # rotate by 90 degrees
+                dx, dy = -dy, dx
+            offsets[r, i] = (dx, dy)
+        counts[r] = len(pattern)
+    return offsets, counts
+
+
+REGION_OFFSETS, REGION_COUNTS = _region_offsets()
+
+
+# --- random numbers: a counter-based hash, identical on any thread (or GPU) -----------------------
+
+@njit(cache=True)
+def _hash32(x):
+    x = x & 0xFFFFFFFF
+    x ^= x >> 16
+    x = (x * 0x7FEB352D) & 0xFFFFFFFF
+    x ^= x >> 15
+    x = (x * 0x846CA68B) & 0xFFFFFFFF
+    x ^= x >> 16
+    return x
+
+
+@njit(cache=True)
+def _uniform(key, k):
+    """The k-th uniform number in [0, 1) of the stream ``key``."""
+    return _hash32(key + 0x9E3779B9 * (k + 1)) * (1.0 / 4294967296.0)
+
+
+def sweep_key(seed: int, sweep: int) -> int:
+    """Random stream of one sweep; pixels derive their own stream from it."""
+    return int(_hash32(_hash32(seed) ^ _hash32(sweep * 0x632BE5AB + 1)))
+
+
+# --- geometry helpers ---------------------------------------------------------------------------
+
+@njit(cache=True, fastmath=True)
+def _ray(kinv, x, y):
+    """Ray (z = 1 in the camera frame) through the centre of pixel (x, y)."""
+    px = x + 0.5
+    py = y + 0.5
+    return (kinv[0, 0] * px + kinv[0, 1] * py + kinv[0, 2],
+            kinv[1, 0] * px + kinv[1, 1] * py + kinv[1, 2],
+            kinv[2, 0] * px + kinv[2, 1] * py + kinv[2, 2])
+
+
+@njit(cache=True, fastmath=True)
+def _random_depth(dmin, dmax, u):
+    """Depth uniform in inverse depth between dmin and dmax."""
+    return 1.0 / (1.0 / dmax + u * (1.0 / dmin - 1.0 / dmax))
+
+
+@njit(cache=True, fastmath=True)
+def _random_normal(rx, ry, rz, u, v):
+    """Unit normal uniform on the half sphere facing the ray (rx, ry, rz)."""
+    nz = 1.0 - 2.0 * u
+    r = math.sqrt(max(0.0, 1.0 - nz * nz))
+    phi = 2.0 * math.pi * v
+    nx = r * math.cos(phi)
+    ny = r * math.sin(phi)
+    if nx * rx + ny * ry + nz * rz > 0.0:
+        return -nx, -ny, -nz
+    return nx, ny, nz
+
+
+@njit(cache=True, fastmath=True)
+def _perturbed_normal(n0, n1, n2, rx, ry, rz, scale, u0, u1, u2):
+    """The normal moved by a random vector of components in [-scale, scale], kept facing the ray."""
+    a = n0 + scale * (2.0 * u0 - 1.0)
+    b = n1 + scale * (2.0 * u1 - 1.0)
+    c = n2 + scale * (2.0 * u2 - 1.0)
+    norm = math.sqrt(a * a + b * b + c * c)
+    if norm < 1e-12 or a * rx + b * ry + c * rz >= 0.0:
+        return n0, n1, n2
+    return a / norm, b / norm, c / norm
+
+
+@njit(cache=True, fastmath=True)
+def _plane_depth_at(kinv, depth, n0, n1, n2, xn, yn, x, y):
+    """Depth at pixel (x, y) of the plane through pixel (xn, yn) at ``depth`` with normal n."""
+    ax, ay, az = _ray(kinv, xn, yn)
+    bx, by, bz = _ray(kinv, x, y)
+    denom = n0 * bx + n1 * by + n2 * bz
+    if denom > -1e-9:
+        return depth
+    return depth * (n0 * ax + n1 * ay + n2 * az) / denom
+
+
+# --- matching cost ------------------------------------------------------------------------------
+
+@njit(cache=True, fastmath=True)
+def _bilinear(img, u, v, width, height):
+    """Image sampled at continuous pixel coordinates (u, v) (pixel centres at .5), clamped."""
+    x = u - 0.5
+    y = v - 0.5
+    if not x > 0.0:  # also catches NaN
+        x = 0.0
+    elif x > width - 1.001:
+        x = width - 1.001
+    if not y > 0.0:
+        y = 0.0
+    elif y > height - 1.001:
+        y = height - 1.001
+    ix = int(x)
+    iy = int(y)
+    ax = x - ix
+    ay = y - iy
+    top = img[iy, ix] + ax * (img[iy, ix + 1] - img[iy, ix])
+    bottom = img[iy + 1, ix] + ax * (img[iy + 1, ix + 1] - img[iy + 1, ix])
+    return top + ay * (bottom - top)
+
+
+@njit(cache=True, fastmath=True)
+def reference_patch(ref, x, y, window, sigma_spatial, sigma_color, weights, centred):
+    """Bilateral weights of the window around (x, y) and its weighted, mean-free intensities.
+
+    Fills ``weights`` (summing to 1) and ``centred`` (weight * (intensity - weighted mean)), sample
+    k = row * count + column; returns the weighted intensity variance.
+    """
+    height, width = ref.shape
+    start, step, count = window[0], window[1], window[2]
+    centre = ref[y, x]
+    inv_s = 0.5 / (sigma_spatial * sigma_spatial)
+    inv_c = 0.5 / (sigma_color * sigma_color)
+    total = 0.0
+    k = 0
+    for j in range(count):
+        dy = start + j * step
+        yy = min(max(y + dy, 0), height - 1)
+        for i in range(count):
+            dx = start + i * step
+            xx = min(max(x + dx, 0), width - 1)
+            value = ref[yy, xx]
+            diff = value - centre
+            w = math.exp(-(dx * dx + dy * dy) * inv_s - diff * diff * inv_c)
+            weights[k] = w
+            centred[k] = value
+            total += w
+            k += 1
+    mean = 0.0
+    square = 0.0
+    for k in range(count * count):
+        w = weights[k] / total
+        weights[k] = w
+        mean += w * centred[k]
+        square += w * centred[k] * centred[k]
+    for k in range(count * count):
+        centred[k] = weights[k] * (centred[k] - mean)
+    return square - mean * mean
+
+
+@njit(cache=True, fastmath=True)
+def _mean_of_best(costs, mask, k, scratch):
+    """Mean of the k smallest costs[s] over the sources s in the bit ``mask``."""
+    n = 0
+    for s in range(costs.shape[0]):
+        if (mask >> s) & 1:
+            v = costs[s]
+            j = n - 1
+            while j >= 0 and scratch[j] > v:  # insertion sort: a handful of entries
+                scratch[j + 1] = scratch[j]
+                j -= 1
+            scratch[j + 1] = v
+            n += 1
+    k = min(k, n)
+    total = 0.0
+    for i in range(k):
+        total += scratch[i]
+    return total / k
+
+
+@njit(cache=True)
+def _best_views(costs, k):
+    """Bit mask of the k sources with the lowest costs."""
+    mask = 0
+    for _ in range(min(k, costs.shape[0])):
+        best = -1
+        for s in range(costs.shape[0]):
+            if not (mask >> s) & 1 and (best < 0 or costs[s] < costs[best]):
+                best = s
+        mask |= 1 << best
+    return mask
+
+
+@njit(cache=True, fastmath=True)
+def _warped_sums(img, cu, cv, dudx, dudy, dvdx, dvdy, window, weights, centred, width, height):
+    """Weighted sums (s, s^2, centred-reference * s) over the source window around (cu, cv) whose
+    sample at window offset (dx, dy) sits at (cu, cv) + J (dx, dy); bounds are checked once per
+    window unless it touches the image border."""
+    start, step, count = window[0], window[1], window[2]
+    radius = max(-start, start + step * (count - 1))
+    reach_u = (abs(dudx) + abs(dudy)) * radius
+    reach_v = (abs(dvdx) + abs(dvdy)) * radius
+    inside = (cu - reach_u >= 0.5 and cv - reach_v >= 0.5 and cu + reach_u < width - 0.5
+              and cv + reach_v < height - 0.5)
+    step_u = dudx * step
+    step_v = dvdx * step
+    sum_s = 0.0
+    sum_ss = 0.0
+    sum_rs = 0.0
+    k = 0
+    for j in range(count):
+        dy = start + j * step
+        u = cu + dudx * start + dudy * dy
+        v = cv + dvdx * start + dvdy * dy
+        for _ in range(count):
+            if inside:
+                x = u - 0.5
+                y = v - 0.5
+                ix = int(x)
+                iy = int(y)
+                ax = x - ix
+                ay = y - iy
+                top = img[iy, ix] + ax * (img[iy, ix + 1] - img[iy, ix])
+                bottom = img[iy + 1, ix] + ax * (img[iy + 1, ix + 1] - img[iy + 1, ix])
+                value = top + ay * (bottom - top)
+            else:
+                value = _bilinear(img, u, v, width, height)
+            w = weights[k]
+            sum_s += w * value
+            sum_ss += w * value * value
+            sum_rs += centred[k] * value
+            u += step_u
+            v += step_v
+            k += 1
+    return sum_s, sum_ss, sum_rs
+
+
+@njit(cache=True, fastmath=True)
+def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, window, kinv, A, b,
+                    srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k, min_var, costs, scratch):
+    """Cost of the plane (depth, n) at pixel (x, y): mean of the top_k costs of the sources in the
+    bit ``mask``, whose costs are left in ``costs[s]`` (``scratch`` is work space of length S).
+
+    A source's cost is 1 - NCC of the bilateral-weighted window warped by the plane's homography,
+    plus ``geo_weight`` times the capped forward-backward reprojection error through the source's
+    depth map when ``geo_weight`` > 0.
+    """
+    px = x + 0.5
+    py = y + 0.5
+    rx, ry, rz = _ray(kinv, x, y)
+    cos = n0 * rx + n1 * ry + n2 * rz
+    worst = MAX_COST + geo_weight * geo_max
+    if cos > -_MIN_COS * math.sqrt(rx * rx + ry * ry + rz * rz):
+        return worst
+    q = depth * cos  # n . X, negative
+    m0 = (kinv[0, 0] * n0 + kinv[1, 0] * n1 + kinv[2, 0] * n2) / q
+    m1 = (kinv[0, 1] * n0 + kinv[1, 1] * n1 + kinv[2, 1] * n2) / q
+    m2 = (kinv[0, 2] * n0 + kinv[1, 2] * n1 + kinv[2, 2] * n2) / q
+    for s in range(A.shape[0]):
+        if not (mask >> s) & 1:
+            continue
+        h00 = A[s, 0, 0] + b[s, 0] * m0
+        h01 = A[s, 0, 1] + b[s, 0] * m1
+        h02 = A[s, 0, 2] + b[s, 0] * m2
+        h10 = A[s, 1, 0] + b[s, 1] * m0
+        h11 = A[s, 1, 1] + b[s, 1] * m1
+        h12 = A[s, 1, 2] + b[s, 1] * m2
+        h20 = A[s, 2, 0] + b[s, 2] * m0
+        h21 = A[s, 2, 1] + b[s, 2] * m1
+        h22 = A[s, 2, 2] + b[s, 2] * m2
+        width = dims[s, 0]
+        height = dims[s, 1]
+        cz = h20 * px + h21 * py + h22
+        if cz <= 0.0:
+            costs[s] = worst
+            continue
+        cu = (h00 * px + h01 * py + h02) / cz
+        cv = (h10 * px + h11 * py + h12) / cz
+        if not (cu >= 0.0 and cv >= 0.0 and cu < width and cv < height):
+            costs[s] = worst
+            continue
+        # the homography is linearised at the window centre: over a window a few pixels wide the
+        # second-order (perspective) term is negligible unless the plane is seen nearly edge-on
+        inv = 1.0 / cz
+        dudx = (h00 - cu * h20) * inv
+        dudy = (h01 - cu * h21) * inv
+        dvdx = (h10 - cv * h20) * inv
+        dvdy = (h11 - cv * h21) * inv
+        sum_s, sum_ss, sum_rs = _warped_sums(srcs[s], cu, cv, dudx, dudy, dvdx, dvdy, window,
+                                             weights, centred, width, height)
+        var_s = sum_ss - sum_s * sum_s
+        if var_s < min_var:
+            cost = MAX_COST
+        else:
+            cost = 1.0 - sum_rs / math.sqrt(ref_var * var_s)
+            cost = min(max(cost, 0.0), MAX_COST)
+        if geo_weight > 0.0:
+            cost += geo_weight * min(_reprojection_error(src_depth, s, cu, cv, px, py, M, c), geo_max)
+        costs[s] = cost
+    return _mean_of_best(costs, mask, top_k, scratch)
+
+
+@njit(cache=True, fastmath=True)
+def _reprojection_error(src_depth, s, u, v, px, py, M, c):
+    """Distance (px) between (px, py) and the back-projection of source pixel (u, v) at its depth."""
+    z = src_depth[s, int(v), int(u)]
+    if not z > 0.0:
+        return 1e6
+    bx = z * (M[s, 0, 0] * u + M[s, 0, 1] * v + M[s, 0, 2]) + c[s, 0]
+    by = z * (M[s, 1, 0] * u + M[s, 1, 1] * v + M[s, 1, 2]) + c[s, 1]
+    bz = z * (M[s, 2, 0] * u + M[s, 2, 1] * v + M[s, 2, 2]) + c[s, 2]
+    if bz <= 0.0:
+        return 1e6
+    ex = bx / bz - px
+    ey = by / bz - py
+    return math.sqrt(ex * ex + ey * ey)
+
+
+# --- the PatchMatch steps -----------------------------------------------------------------------
+
+@njit(parallel=True, cache=True, fastmath=True)
+def initialise(depth, normal, kinv, dmin, dmax, key):
+    """Random plane hypotheses: depth uniform in inverse depth, normal facing the camera."""
+    height, width = depth.shape
+    for y in prange(height):
+        for x in range(width):
+            pk = _hash32(key ^ _hash32(y * width + x))
+            rx, ry, rz = _ray(kinv, x, y)
+            depth[y, x] = _random_depth(dmin, dmax, _uniform(pk, 0))
+            n0, n1, n2 = _random_normal(rx, ry, rz, _uniform(pk, 1), _uniform(pk, 2))
+            normal[y, x, 0] = n0
+            normal[y, x, 1] = n1
+            normal[y, x, 2] = n2
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def upsample(depth_coarse, normal_coarse, kinv_coarse, kinv, depth, normal):
+    """Fine hypotheses from coarse ones: each fine pixel takes its coarse pixel's plane."""
+    height, width = depth.shape
+    hc, wc = depth_coarse.shape
+    for y in prange(height):
+        yc = min(int((y + 0.5) * hc / height), hc - 1)
+        for x in range(width):
+            xc = min(int((x + 0.5) * wc / width), wc - 1)
+            n0 = normal_coarse[yc, xc, 0]
+            n1 = normal_coarse[yc, xc, 1]
+            n2 = normal_coarse[yc, xc, 2]
+            ax, ay, az = _ray(kinv_coarse, xc, yc)
+            bx, by, bz = _ray(kinv, x, y)
+            d = depth_coarse[yc, xc]
+            denom = n0 * bx + n1 * by + n2 * bz
+            if denom < -1e-9:
+                d = d * (n0 * ax + n1 * ay + n2 * az) / denom
+            depth[y, x] = d
+            normal[y, x, 0] = n0
+            normal[y, x, 1] = n1
+            normal[y, x, 2] = n2
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def evaluate(ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max, window,
+             sigma_spatial, sigma_color, min_var, top_k, views_mode, depth, normal, cost, views):
+    """The cost of every pixel's current hypothesis (after initialise or upsample).
+
+    ``views_mode`` ALL_VIEWS: over all sources, and the view masks are reset to all sources;
+    SELECT_VIEWS: over all sources, then each mask becomes the pixel's top_k best sources for this
+    hypothesis (later sweeps match the pixel against those only); KEEP_VIEWS: over each pixel's mask.
+    """
+    height, width = ref.shape
+    n = window[2] * window[2]
+    everything = (1 << A.shape[0]) - 1
+    for y in prange(height):
+        weights = np.empty(n)
+        centred = np.empty(n)
+        costs = np.empty(A.shape[0])
+        scratch = np.empty(A.shape[0])
+        for x in range(width):
+            if views_mode != KEEP_VIEWS:
+                views[y, x] = everything
+            ref_var = reference_patch(ref, x, y, window, sigma_spatial, sigma_color, weights, centred)
+            if ref_var < min_var:
+                cost[y, x] = MAX_COST + geo_weight * geo_max
+                continue
+            cost[y, x] = hypothesis_cost(x, y, depth[y, x], normal[y, x, 0], normal[y, x, 1],
+                                         normal[y, x, 2], views[y, x], weights, centred, ref_var, window,
+                                         kinv, A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max,
+                                         top_k, min_var, costs, scratch)
+            if views_mode == SELECT_VIEWS:
+                views[y, x] = _best_views(costs, top_k)
+
+
+@njit(cache=True, fastmath=True)
+def _best_in_region(cost, x, y, region_offsets, count):
+    """The in-image neighbour of the region with the lowest current cost (-1, -1 if none)."""
+    height, width = cost.shape
+    best = np.inf
+    bx = -1
+    by = -1
+    for i in range(count):
+        xx = x + region_offsets[i, 0]
+        yy = y + region_offsets[i, 1]
+        if xx >= 0 and yy >= 0 and xx < width and yy < height and cost[yy, xx] < best:
+            best = cost[yy, xx]
+            bx = xx
+            by = yy
+    return bx, by
+
+
+@njit(cache=True, fastmath=True)
+def _same_plane(d, n0, n1, n2, bd, b0, b1, b2):
+    return abs(d - bd) <= 1e-6 * bd and n0 == b0 and n1 == b1 and n2 == b2
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max,
+                         window, sigma_spatial, sigma_color, min_var, top_k, depth, normal, cost, views,
+                         dmin, dmax, perturbation, random_candidates, key, region_offsets, region_counts,
+                         n_regions):
+    """One half sweep: every pixel of ``colour`` ((x + y) % 2) tests the planes of the best
+    neighbours of the first ``n_regions`` regions (propagation), then perturbed and, with
+    ``random_candidates``, random planes (refinement), keeping the cheapest. Each pixel is matched
+    against the sources of its view mask."""
+    height, width = ref.shape
+    n = window[2] * window[2]
+    for y in prange(height):
+        weights = np.empty(n)
+        centred = np.empty(n)
+        costs = np.empty(A.shape[0])
+        scratch = np.empty(A.shape[0])
+        for x in range((y + colour) % 2, width, 2):
+            ref_var = reference_patch(ref, x, y, window, sigma_spatial, sigma_color, weights, centred)
+            if ref_var < min_var:
+                continue
+            mask = views[y, x]
+            best = cost[y, x]
+            bd = depth[y, x]
+            b0 = normal[y, x, 0]
+            b1 = normal[y, x, 1]
+            b2 = normal[y, x, 2]
+            # propagation
+            for r in range(n_regions):
+                xn, yn = _best_in_region(cost, x, y, region_offsets[r], region_counts[r])
+                if xn < 0:
+                    continue
+                n0 = normal[yn, xn, 0]
+                n1 = normal[yn, xn, 1]
+                n2 = normal[yn, xn, 2]
+                d = _plane_depth_at(kinv, depth[yn, xn], n0, n1, n2, xn, yn, x, y)
+                if d < dmin or d > dmax or _same_plane(d, n0, n1, n2, bd, b0, b1, b2):
+                    continue
+                h = hypothesis_cost(x, y, d, n0, n1, n2, mask, weights, centred, ref_var, window, kinv,
+                                    A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k,
+                                    min_var, costs, scratch)
+                if h < best:
+                    best = h
+                    bd = d
+                    b0 = n0
+                    b1 = n1
+                    b2 = n2
+            # refinement around the best plane found so far
+            pk = _hash32(key ^ _hash32(y * width + x))
+            rx, ry, rz = _ray(kinv, x, y)
+            dp = bd * (1.0 + perturbation * (2.0 * _uniform(pk, 0) - 1.0))
+            p0, p1, p2 = _perturbed_normal(b0, b1, b2, rx, ry, rz, perturbation * math.pi,
+                                           _uniform(pk, 1), _uniform(pk, 2), _uniform(pk, 3))
+            dr = _random_depth(dmin, dmax, _uniform(pk, 4))
+            r0, r1, r2 = _random_normal(rx, ry, rz, _uniform(pk, 5), _uniform(pk, 6))
+            n_candidates = 6 if random_candidates else 3
+            d0 = bd
+            c0 = b0
+            c1 = b1
+            c2 = b2
+            for i in range(n_candidates):
+                if i == 0:  # perturbed depth, same normal
+                    d, n0, n1, n2 = dp, c0, c1, c2
+                elif i == 1:  # same depth, perturbed normal
+                    d, n0, n1, n2 = d0, p0, p1, p2
+                elif i == 2:  # both perturbed
+                    d, n0, n1, n2 = dp, p0, p1, p2
+                elif i == 3:  # random depth
+                    d, n0, n1, n2 = dr, c0, c1, c2
+                elif i == 4:  # random normal
+                    d, n0, n1, n2 = d0, r0, r1, r2
+                else:  # both random
+                    d, n0, n1, n2 = dr, r0, r1, r2
+                if d < dmin or d > dmax:
+                    continue
+                h = hypothesis_cost(x, y, d, n0, n1, n2, mask, weights, centred, ref_var, window, kinv,
+                                    A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k,
+                                    min_var, costs, scratch)
+                if h < best:
+                    best = h
+                    bd = d
+                    b0 = n0
+                    b1 = n1
+                    b2 = n2
+            depth[y, x] = bd
+            normal[y, x, 0] = b0
+            normal[y, x, 1] = b1
+            normal[y, x, 2] = b2
+            cost[y, x] = best
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def consistent_views(depth, kinv, A, b, src_depth, dims, M, c, max_reprojection, max_depth_error):
+    """Per pixel, how many source depth maps agree with its depth: the point projects into the
+    source where the source depth differs by less than ``max_depth_error`` (relative) and maps back
+    to within ``max_reprojection`` px of the pixel."""
+    height, width = depth.shape
+    count = np.zeros((height, width), np.int32)
+    for y in prange(height):
+        for x in range(width):
+            d = depth[y, x]
+            if not d > 0.0:
+                continue
+            px = x + 0.5
+            py = y + 0.5
+            for s in range(A.shape[0]):
+                hz = d * (A[s, 2, 0] * px + A[s, 2, 1] * py + A[s, 2, 2]) + b[s, 2]
+                if hz <= 0.0:
+                    continue
+                u = (d * (A[s, 0, 0] * px + A[s, 0, 1] * py + A[s, 0, 2]) + b[s, 0]) / hz
+                v = (d * (A[s, 1, 0] * px + A[s, 1, 1] * py + A[s, 1, 2]) + b[s, 1]) / hz
+                if not (u >= 0.0 and v >= 0.0 and u < dims[s, 0] and v < dims[s, 1]):
+                    continue
+                z = src_depth[s, int(v), int(u)]
+                if not z > 0.0 or abs(hz - z) > max_depth_error * z:
+                    continue
+                if _reprojection_error(src_depth, s, u, v, px, py, M, c) <= max_reprojection:
+                    count[y, x] += 1
+    return count
+
+
+# --- drivers over a pyramid ---------------------------------------------------------------------
+
+@dataclass
+class Level:
+    """The reference and source images of one pyramid level, with their geometry."""
+
+    ref: np.ndarray
+    srcs: np.ndarray
+    dims: np.ndarray
+    geometry: ViewGeometry
+
+
+def make_level(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
+               scale: float = 1.0) -> Level:
+    """A level at ``scale`` of the given images (area-resampled) and cameras."""
+    def resized(im: np.ndarray) -> np.ndarray:
+        if scale == 1.0:
+            return np.ascontiguousarray(im, dtype=np.float32)
+        size = (max(1, round(im.shape[1] * scale)), max(1, round(im.shape[0] * scale)))
+        return cv2.resize(im, size, interpolation=cv2.INTER_AREA).astype(np.float32)
+
+    def cam(im: np.ndarray, small: np.ndarray, camera: Camera) -> Camera:
+        return camera.scaled(small.shape[1] / im.shape[1], small.shape[0] / im.shape[0])
+
+    ref_small = resized(ref)
+    src_small = [resized(im) for im in srcs]
+    stack, dims = stack_images(src_small)
+    geometry = view_geometry(cam(ref, ref_small, ref_cam),
+                             [cam(im, sm, cm) for im, sm, cm in zip(srcs, src_small, src_cams)])
+    return Level(ref_small, stack, dims, geometry)
+
+
+@dataclass
+class State:
+    """Per-pixel plane hypotheses, their costs and the bit masks of the sources each pixel uses."""
+
+    depth: np.ndarray
+    normal: np.ndarray
+    cost: np.ndarray
+    views: np.ndarray
+
+    @classmethod
+    def empty(cls, shape: tuple[int, int]) -> State:
+        return cls(np.zeros(shape, np.float32), np.zeros(shape + (3,), np.float32),
+                   np.zeros(shape, np.float32), np.zeros(shape, np.int64))
+
+
+def _kernel_params(options: MVSOptions) -> tuple:
+    window = window_grid(options.window_radius, options.window_step)
+    sigma_spatial = options.sigma_spatial or float(options.window_radius)
+    return window, sigma_spatial, options.sigma_color, options.min_texture ** 2, options.top_k
+
+
+def _geo_args(level: Level, src_depth: np.ndarray | None, options: MVSOptions) -> tuple:
+    if src_depth is None:
+        return np.zeros((level.geometry.A.shape[0], 1, 1), np.float32), 0.0, options.geometric_max_error
+    return src_depth, options.geometric_weight, options.geometric_max_error
+
+
+def evaluate_state(level: Level, state: State, options: MVSOptions, views_mode: int,
+                   src_depth: np.ndarray | None = None) -> None:
+    """Recompute the costs of the current hypotheses (photometric, or with the geometric term when
+    ``src_depth`` is given); ``views_mode`` as in :func:`evaluate`."""
+    g = level.geometry
+    window, ss, sc, min_var, top_k = _kernel_params(options)
+    depth_maps, weight, cap = _geo_args(level, src_depth, options)
+    evaluate(level.ref, level.srcs, level.dims, g.kinv, g.A, g.b, depth_maps, g.M, g.c, weight, cap,
+             window, ss, sc, min_var, top_k, views_mode, state.depth, state.normal, state.cost,
+             state.views)
+
+
+def sweeps(level: Level, state: State, options: MVSOptions, depth_range: tuple[float, float],
+           iterations: int, perturbation: float, random_candidates: bool, far_regions: bool, seed: int,
+           first_sweep: int, src_depth: np.ndarray | None = None) -> None:
+    """Run ``iterations`` red-black sweeps of propagation and refinement on ``state``; the
+    perturbation halves every sweep. ``far_regions`` adds the four far strips to the four near
+    regions of the propagation."""
+    g = level.geometry
+    window, ss, sc, min_var, top_k = _kernel_params(options)
+    depth_maps, weight, cap = _geo_args(level, src_depth, options)
+    for it in range(iterations):
+        for colour in (0, 1):
+            key = sweep_key(seed, 2 * (first_sweep + it) + colour)
+            propagate_and_refine(colour, level.ref, level.srcs, level.dims, g.kinv, g.A, g.b,
+                                 depth_maps, g.M, g.c, weight, cap, window, ss, sc, min_var, top_k,
+                                 state.depth, state.normal, state.cost, state.views, depth_range[0],
+                                 depth_range[1], perturbation * 0.5 ** it, random_candidates, key,
+                                 REGION_OFFSETS, REGION_COUNTS, 8 if far_regions else 4)
+
+
+def pyramid_levels(shape: tuple[int, int], options: MVSOptions) -> int:
+    """Number of levels for an image of ``shape``: at most ``pyramid_levels``, the coarsest keeping
+    its longest side >= ``pyramid_min_size``."""
+    levels = 1
+    while levels < options.pyramid_levels and max(shape) * 0.5 ** levels >= options.pyramid_min_size:
+        levels += 1
+    return levels
+
+
+def photometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
+                      depth_range: tuple[float, float], options: MVSOptions, seed: int) -> State:
+    """Photometric PatchMatch, coarse to fine, for a float32 [0, 1] grey reference image.
+
+    The coarsest level starts from random planes and matches every pixel against all sources, with
+    random refinement candidates; each finer level starts from the coarser planes and (with
+    ``options.view_subset``) matches each pixel against its top_k sources only. The finest level
+    propagates from the near regions only.
+    """
+    sweep = 0
+    state = None
+    previous = None
+    for lvl in reversed(range(pyramid_levels(ref.shape, options))):
+        start, cpu = time.perf_counter(), time.process_time()
+        level = make_level(ref, srcs, ref_cam, src_cams, 0.5 ** lvl)
+        fresh = State.empty(level.ref.shape)
+        if state is None:
+            initialise(fresh.depth, fresh.normal, level.geometry.kinv, depth_range[0], depth_range[1],
+                       sweep_key(seed, 0x7FFFF))
+            iterations, perturbation = options.iterations, options.perturbation
+        else:
+            upsample(state.depth, state.normal, previous.geometry.kinv, level.geometry.kinv,
+                     fresh.depth, fresh.normal)
+            iterations = options.fine_iterations if lvl == 0 else options.upper_iterations
+            perturbation = options.perturbation * 0.25
+        subset = state is not None and options.view_subset
+        evaluate_state(level, fresh, options, SELECT_VIEWS if subset else ALL_VIEWS)
+        sweeps(level, fresh, options, depth_range, iterations, perturbation,
+               random_candidates=state is None, far_regions=lvl > 0, seed=seed, first_sweep=sweep)
+        sweep += iterations
+        state, previous = fresh, level
+        log.debug("level %d (%dx%d): %d sweeps in %.2f s (%.2f s CPU)", lvl, level.ref.shape[1],
+                  level.ref.shape[0], iterations, time.perf_counter() - start, time.process_time() - cpu)
+    return state
+
+
+def geometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
+                    src_depths: list[np.ndarray], initial: State, depth_range: tuple[float, float],
+                    options: MVSOptions, seed: int) -> State:
+    """Geometric-consistency pass: sweeps whose cost adds the reprojection error through the source
+    depth maps (each the size of its source image), starting from the photometric ``initial``."""
+    level = make_level(ref, srcs, ref_cam, src_cams)
+    src_depth, _ = stack_images(src_depths)
+    state = State(initial.depth.copy(), initial.normal.copy(), np.zeros_like(initial.cost),
+                  np.zeros_like(initial.depth, dtype=np.int64))
+    evaluate_state(level, state, options, SELECT_VIEWS if options.view_subset else ALL_VIEWS, src_depth)
+    sweeps(level, state, options, depth_range, options.geometric_iterations,
+           options.perturbation * 0.125, random_candidates=False, far_regions=False, seed=seed,
+           first_sweep=1000, src_depth=src_depth)
+    return state
+
+
+def filter_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
+                 src_depths: list[np.ndarray], state: State, options: MVSOptions) -> State:
+    """Zero the pixels whose photometric cost (mean over the top_k sources of ``state.views``) is high
+    or that fewer than ``filter_min_consistent`` source depth maps confirm."""
+    level = make_level(ref, srcs, ref_cam, src_cams)
+    photometric = State(state.depth, state.normal, np.zeros_like(state.cost), state.views.copy())
+    evaluate_state(level, photometric, options, KEEP_VIEWS)
+    g = level.geometry
+    src_depth, depth_dims = stack_images(src_depths)
+    count = consistent_views(state.depth, g.kinv, g.A, g.b, src_depth, depth_dims, g.M, g.c,
+                             options.filter_max_reprojection, options.filter_max_depth_error)
+    keep = (photometric.cost <= options.filter_max_cost) & (count >= options.filter_min_consistent)
+    keep &= state.depth > 0
+    return State(np.where(keep, state.depth, 0).astype(np.float32),
+                 np.where(keep[..., None], state.normal, 0).astype(np.float32),
+                 np.where(keep, photometric.cost, MAX_COST).astype(np.float32), photometric.views)

@@ -1,0 +1,135 @@
+"""Per-view drivers of the CPU PatchMatch stereo on a COLMAP undistorted workspace.
+
+``dense_dir`` is the folder ``pycolmap.undistort_images`` writes (``images/``, ``sparse/`` with
+PINHOLE cameras, ``stereo/``). Maps are written in COLMAP's layout under ``out_dir`` (normally
+``dense_dir/stereo``)::
+
+    depth_maps/<image>.photometric.bin    normal_maps/<image>.photometric.bin
+    depth_maps/<image>.geometric.bin      normal_maps/<image>.geometric.bin
+
+at the working resolution (longest side at most ``max_image_size``), which ``pycolmap.stereo_fusion``
+reads with the full-size images. Each file is written atomically and the depth map last, so a depth
+map on disk means the view is complete. Filtered pixels have depth 0 and normal (0, 0, 0).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import zlib
+from pathlib import Path
+
+import cv2
+import numba
+import numpy as np
+import pycolmap
+
+from recon.mvs import patchmatch
+from recon.mvs.colmap_io import read_depth_map, read_normal_map, write_map
+from recon.mvs.options import MVSOptions
+from recon.mvs.views import Problem, ViewCamera, select_problems
+
+log = logging.getLogger(__name__)
+
+
+def map_path(out_dir: str | Path, kind: str, name: str, pass_name: str) -> Path:
+    """``out_dir/{kind}_maps/<name>.<pass_name>.bin`` for kind 'depth' or 'normal', pass
+    'photometric' or 'geometric'."""
+    return Path(out_dir) / f"{kind}_maps" / f"{name}.{pass_name}.bin"
+
+
+def load_grey(path: Path, camera: ViewCamera, size: tuple[int, int]) -> tuple[np.ndarray, patchmatch.Camera]:
+    """The image as float32 grey in [0, 1] resized (area) to ``size`` = (width, height), and its camera."""
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise FileNotFoundError(f"cannot read image {path}")
+    if image.shape != (camera.height, camera.width):
+        raise ValueError(f"{path}: image is {image.shape[1]}x{image.shape[0]}, its camera "
+                         f"{camera.width}x{camera.height}")
+    if (image.shape[1], image.shape[0]) != size:
+        image = cv2.resize(image, size, interpolation=cv2.INTER_AREA)
+    cam = patchmatch.Camera(camera.K, camera.R, camera.t).scaled(size[0] / camera.width,
+                                                                   size[1] / camera.height)
+    return image.astype(np.float32) / 255.0, cam
+
+
+def working_size(camera: ViewCamera, max_image_size: int) -> tuple[int, int]:
+    """(width, height) of the depth map of an image: its size, scaled down to fit max_image_size."""
+    scale = min(1.0, max_image_size / max(camera.width, camera.height))
+    return max(1, round(camera.width * scale)), max(1, round(camera.height * scale))
+
+
+def _seed(options: MVSOptions, name: str) -> int:
+    return (options.seed * 1_000_003 + zlib.crc32(name.encode())) & 0x7FFFFFFF
+
+
+def _use_threads(options: MVSOptions) -> None:
+    numba.set_num_threads(options.num_threads or numba.config.NUMBA_NUM_THREADS)
+
+
+def photometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
+                     out_dir: str | Path) -> Path:
+    """Photometric depth and normal maps of ``problem.ref``; returns the depth map's path."""
+    _use_threads(options)
+    start = time.perf_counter()
+    images = Path(dense_dir) / "images"
+    views = [problem.cameras[name] for name in (problem.ref, *problem.sources)]
+    loaded = [load_grey(images / v.name, v, working_size(v, options.max_image_size)) for v in views]
+    state = patchmatch.photometric_depth(
+        loaded[0][0], [im for im, _ in loaded[1:]], loaded[0][1], [cam for _, cam in loaded[1:]],
+        (problem.depth_min, problem.depth_max), options, _seed(options, problem.ref))
+    write_map(map_path(out_dir, "normal", problem.ref, "photometric"), state.normal)
+    path = write_map(map_path(out_dir, "depth", problem.ref, "photometric"), state.depth)
+    log.info("%s: photometric depth %dx%d in %.1f s", problem.ref, state.depth.shape[1],
+             state.depth.shape[0], time.perf_counter() - start)
+    return path
+
+
+def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
+                   out_dir: str | Path) -> Path:
+    """Geometric-consistency refinement (when ``options.geometric``) and filtering of the photometric
+    maps of ``problem.ref`` against its sources' photometric depth maps; returns the depth map's path.
+
+    Needs the photometric depth maps of the reference and its sources in ``out_dir``.
+    """
+    _use_threads(options)
+    start = time.perf_counter()
+    images = Path(dense_dir) / "images"
+    depth = read_depth_map(map_path(out_dir, "depth", problem.ref, "photometric"))
+    normal = read_normal_map(map_path(out_dir, "normal", problem.ref, "photometric"))
+    src_depths = [read_depth_map(map_path(out_dir, "depth", name, "photometric")) for name in problem.sources]
+    ref, ref_cam = load_grey(images / problem.ref, problem.cameras[problem.ref], depth.shape[::-1])
+    srcs, src_cams = [], []
+    for name, src_depth in zip(problem.sources, src_depths):
+        image, cam = load_grey(images / name, problem.cameras[name], src_depth.shape[::-1])
+        srcs.append(image)
+        src_cams.append(cam)
+    everything = (1 << len(src_depths)) - 1
+    state = patchmatch.State(depth, normal, np.zeros_like(depth), np.full(depth.shape, everything, np.int64))
+    if options.geometric and options.geometric_iterations > 0:
+        state = patchmatch.geometric_depth(ref, srcs, ref_cam, src_cams, src_depths, state,
+                                           (problem.depth_min, problem.depth_max), options,
+                                           _seed(options, problem.ref))
+    state = patchmatch.filter_depth(ref, srcs, ref_cam, src_cams, src_depths, state, options)
+    write_map(map_path(out_dir, "normal", problem.ref, "geometric"), state.normal)
+    path = write_map(map_path(out_dir, "depth", problem.ref, "geometric"), state.depth)
+    log.info("%s: geometric depth in %.1f s, %.0f%% of pixels kept", problem.ref,
+             time.perf_counter() - start, 100.0 * np.count_nonzero(state.depth) / state.depth.size)
+    return path
+
+
+def dense_stereo(dense_dir: str | Path, options: MVSOptions = MVSOptions(),
+                 out_dir: str | Path | None = None) -> list[Path]:
+    """Depth maps of every image of an undistorted workspace, in one process: both passes for all
+    views, skipping views whose maps already exist. Returns the geometric depth maps' paths."""
+    dense_dir = Path(dense_dir)
+    out_dir = Path(out_dir) if out_dir is not None else dense_dir / "stereo"
+    problems = select_problems(pycolmap.Reconstruction(dense_dir / "sparse"), options)
+    for problem in problems:
+        if not map_path(out_dir, "depth", problem.ref, "photometric").exists():
+            photometric_view(dense_dir, problem, options, out_dir)
+    paths = []
+    for problem in problems:
+        path = map_path(out_dir, "depth", problem.ref, "geometric")
+        paths.append(path if path.exists() else geometric_view(dense_dir, problem, options, out_dir))
+    return paths

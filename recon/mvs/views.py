@@ -1,0 +1,136 @@
+"""Choose, for every reference image, its source views and depth range from the sparse model.
+
+A source view is scored by the 3D points it shares with the reference, each point weighted by how
+useful its triangulation angle is (the piecewise Gaussian of MVSNet's view selection: peak at 5 deg,
+narrow below, wide above); points seen under less than ``min_triangulation_angle`` do not count, and
+a source seeing the shared points at a very different resolution (ratio of depth / focal length) is
+skipped. The depth range is the 1-99 percentile of the reference's point depths, p1 / (1 + margin) to
+p99 * (1 + margin).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import pycolmap
+
+from recon.mvs.options import MVSOptions
+
+log = logging.getLogger(__name__)
+
+_ANGLE_PEAK = 5.0  # deg
+_SIGMA_BELOW = 1.0
+_SIGMA_ABOVE = 10.0
+
+
+@dataclass(frozen=True, eq=False)
+class ViewCamera:
+    """A pinhole camera of an image of the dense workspace: x_cam = R @ X + t, pixel ~ K @ x_cam."""
+
+    name: str
+    K: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    width: int
+    height: int
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """One depth map to estimate: the reference image, its source images (best first), the depth range
+    and the cameras of all of them (so a worker needs no sparse model)."""
+
+    ref: str
+    sources: tuple[str, ...]
+    depth_min: float
+    depth_max: float
+    cameras: dict[str, ViewCamera]
+
+
+def view_camera(image: pycolmap.Image, camera: pycolmap.Camera) -> ViewCamera:
+    """The pinhole camera of a registered image with an undistorted (PINHOLE/SIMPLE_PINHOLE) camera."""
+    if camera.model_name not in ("PINHOLE", "SIMPLE_PINHOLE"):
+        raise ValueError(f"{image.name}: dense stereo needs undistorted pinhole cameras, got {camera.model_name}")
+    pose = image.cam_from_world()
+    return ViewCamera(image.name, np.asarray(camera.calibration_matrix(), dtype=np.float64),
+                      np.asarray(pose.rotation.matrix(), dtype=np.float64),
+                      np.asarray(pose.translation, dtype=np.float64), int(camera.width), int(camera.height))
+
+
+def angle_weight(angle_deg: np.ndarray) -> np.ndarray:
+    """Usefulness of a triangulation angle: 1 at 5 deg, falling fast below and slowly above."""
+    sigma = np.where(angle_deg <= _ANGLE_PEAK, _SIGMA_BELOW, _SIGMA_ABOVE)
+    return np.exp(-((angle_deg - _ANGLE_PEAK) ** 2) / (2 * sigma**2))
+
+
+def select_problems(reconstruction: pycolmap.Reconstruction, options: MVSOptions = MVSOptions(),
+                    min_points: int = 10) -> list[Problem]:
+    """One problem per registered image that shares at least ``min_points`` well-triangulated points
+    with some other image; images without any such source are left out (logged)."""
+    cameras: dict[int, ViewCamera] = {}
+    for image_id, image in reconstruction.images.items():
+        if image.has_pose:
+            cameras[image_id] = view_camera(image, reconstruction.cameras[image.camera_id])
+    ids = sorted(cameras)
+    index = {image_id: i for i, image_id in enumerate(ids)}
+    point_rows, image_cols, xyz = [], [], []
+    for row, point in enumerate(reconstruction.points3D.values()):
+        xyz.append(point.xyz)
+        for element in point.track.elements:
+            if element.image_id in index:
+                point_rows.append(row)
+                image_cols.append(index[element.image_id])
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    obs_point = np.asarray(point_rows, dtype=np.int64)
+    obs_image = np.asarray(image_cols, dtype=np.int64)
+    centres = np.array([-cameras[i].R.T @ cameras[i].t for i in ids]).reshape(-1, 3)
+    focals = np.array([np.sqrt(cameras[i].K[0, 0] * cameras[i].K[1, 1]) for i in ids])
+    all_cameras = {cameras[i].name: cameras[i] for i in ids}
+
+    problems = []
+    for i, image_id in enumerate(ids):
+        cam = cameras[image_id]
+        seen = np.unique(obs_point[obs_image == i])
+        if len(seen) < min_points:
+            log.info("%s: only %d sparse points, no depth map", cam.name, len(seen))
+            continue
+        sel = np.isin(obs_point, seen) & (obs_image != i)
+        pts, others = obs_point[sel], obs_image[sel]
+        to_ref = xyz[pts] - centres[i]
+        to_src = xyz[pts] - centres[others]
+        cos = np.einsum("ij,ij->i", to_ref, to_src) / (
+            np.linalg.norm(to_ref, axis=1) * np.linalg.norm(to_src, axis=1) + 1e-300)
+        angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        useful = angle >= options.min_triangulation_angle
+        depth_ref = xyz[pts] @ cam.R[2] + cam.t[2]
+        depth_src = np.einsum("ij,ij->i", xyz[pts], np.array([cameras[ids[j]].R[2] for j in others]).reshape(-1, 3))
+        depth_src += np.array([cameras[ids[j]].t[2] for j in others])
+        footprint = (depth_ref / focals[i]) / np.maximum(depth_src / focals[others], 1e-300)
+        scores = []
+        for j in np.unique(others[useful]):
+            mine = useful & (others == j)
+            if mine.sum() < min_points:
+                continue
+            ratio = float(np.median(footprint[mine]))
+            if not 1.0 / options.max_scale_ratio <= ratio <= options.max_scale_ratio:
+                continue
+            scores.append((float(angle_weight(angle[mine]).sum()), cameras[ids[j]].name))
+        if not scores:
+            log.info("%s: no source view with enough well-triangulated shared points", cam.name)
+            continue
+        scores.sort(key=lambda item: (-item[0], item[1]))
+        sources = tuple(name for _, name in scores[: options.max_sources])
+        z = xyz[seen] @ cam.R[2] + cam.t[2]
+        z = z[z > 0]
+        if len(z) < min_points:
+            log.info("%s: too few points in front of the camera", cam.name)
+            continue
+        near, far = np.percentile(z, [1, 99])
+        problems.append(Problem(
+            ref=cam.name, sources=sources,
+            depth_min=float(near / (1 + options.depth_margin)),
+            depth_max=float(far * (1 + options.depth_margin)),
+            cameras={name: all_cameras[name] for name in (cam.name, *sources)}))
+    return problems

@@ -1,0 +1,57 @@
+"""fusion: depth maps -> one coloured, oriented point cloud (COLMAP's stereo fusion, on the CPU)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from recon.options import opt
+from recon.stage import Stage, StageContext, StageError, register
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    min_num_pixels: int = opt(3, "fewest views that must agree on a point", ge=1)
+    max_reproj_error: float = opt(2.0, "largest reprojection error between agreeing views (px)", gt=0)
+    max_depth_error: float = opt(0.01, "largest relative depth difference between agreeing views", gt=0)
+    max_normal_error: float = opt(10.0, "largest normal angle between agreeing views (degrees)", gt=0)
+
+
+@register
+class Fusion(Stage):
+    name = "fusion"
+    version = 1
+    Config = FusionConfig
+    requires = ("undistort", "mvs")
+    outputs = ("fused.ply",)
+    publish = {"fused.ply": "dense/fused.ply"}
+    summary = "fuse consistent depth-map pixels into a point cloud with normals and colours"
+
+    def run(self, ctx: StageContext, cfg: FusionConfig) -> dict:
+        import pycolmap
+
+        dense = ctx.input("undistort") / "dense"
+        scratch = ctx.out / "workspace"  # COLMAP's layout, assembled from the two stages' outputs
+        scratch.mkdir(exist_ok=True)
+        for name, target in (("images", dense / "images"), ("sparse", dense / "sparse"),
+                             ("stereo", ctx.input("mvs") / "stereo")):
+            link = scratch / name
+            if link.is_symlink():
+                link.unlink()
+            link.symlink_to(target)
+        opts = pycolmap.StereoFusionOptions()
+        opts.min_num_pixels = cfg.min_num_pixels
+        opts.max_reproj_error = cfg.max_reproj_error
+        opts.max_depth_error = cfg.max_depth_error
+        opts.max_normal_error = cfg.max_normal_error
+        tmp = ctx.out / ".fused.ply"
+        rec = pycolmap.stereo_fusion(str(tmp), str(scratch), options=opts, output_type="PLY")
+        if rec.num_points3D() == 0 and not tmp.exists():
+            raise StageError("fusion: no point was seen consistently by enough views; lower "
+                             "fusion.min_num_pixels or check the mvs depth maps")
+        tmp.replace(ctx.out / "fused.ply")
+        import trimesh
+
+        points = len(trimesh.load(ctx.out / "fused.ply").vertices)
+        if points == 0:
+            raise StageError("fusion: the fused cloud is empty; lower fusion.min_num_pixels or check the depth maps")
+        return {"points": points}

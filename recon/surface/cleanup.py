@@ -1,0 +1,142 @@
+"""Mesh cleanup: degenerate and duplicate faces, non-manifold edges and vertices, small floating pieces,
+and quadric-error decimation. Every function returns a new mesh and keeps vertex colours."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import scipy.sparse as sp
+import trimesh
+from scipy.sparse.csgraph import connected_components
+
+from recon._open3d import open3d
+from recon.surface.options import MeshOptions
+
+log = logging.getLogger(__name__)
+
+
+def _keep_faces(mesh: trimesh.Trimesh, keep: np.ndarray) -> trimesh.Trimesh:
+    out = mesh.copy()
+    out.update_faces(keep)
+    out.remove_unreferenced_vertices()
+    return out
+
+
+def remove_degenerate_faces(mesh: trimesh.Trimesh, rel_area: float = 1e-12) -> trimesh.Trimesh:
+    """Drop faces with a repeated vertex, faces of (near) zero area and all but the first of faces using the
+    same three vertices. ``rel_area`` is relative to the squared bounding-box diagonal."""
+    f = np.asarray(mesh.faces)
+    repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    tiny = mesh.area_faces <= rel_area * max(mesh.scale, 1e-30) ** 2
+    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    unique = np.zeros(len(f), bool)
+    unique[first] = True
+    keep = ~repeated & ~tiny & unique
+    log.debug("degenerate: %d repeated-vertex, %d zero-area, %d duplicate faces",
+              repeated.sum(), (tiny & ~repeated).sum(), (~unique).sum())
+    return _keep_faces(mesh, keep)
+
+
+def remove_non_manifold_edges(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Where more than two faces share an edge, keep the two largest of them."""
+    f = np.asarray(mesh.faces)
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    face_of = np.tile(np.arange(len(f)), 3)
+    _, edge_id, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    edge_id = edge_id.ravel()
+    bad = counts[edge_id] > 2
+    keep = np.ones(len(f), bool)
+    if bad.any():
+        area = mesh.area_faces
+        e, fc = edge_id[bad], face_of[bad]
+        order = np.lexsort((-area[fc], e))  # per edge, largest faces first
+        e, fc = e[order], fc[order]
+        rank = np.arange(len(e)) - np.searchsorted(e, e)
+        keep[fc[rank >= 2]] = False
+    log.debug("non-manifold edges: %d faces dropped", (~keep).sum())
+    return _keep_faces(mesh, keep)
+
+
+def split_non_manifold_vertices(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Give each fan of faces meeting at a vertex only through that vertex its own copy of the vertex."""
+    f = np.asarray(mesh.faces)
+    n_v, n_f = len(mesh.vertices), len(f)
+    corner_v = f.ravel()  # corner c = 3 * face + slot
+    # two corners of one vertex are in one fan when their faces share an edge through that vertex
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    efaces = np.tile(np.arange(n_f), 3)
+    key = np.sort(edges, axis=1)
+    order = np.lexsort((key[:, 1], key[:, 0]))
+    key, efaces = key[order], efaces[order]
+    same = np.all(key[1:] == key[:-1], axis=1)
+    fa, fb, shared = efaces[:-1][same], efaces[1:][same], key[:-1][same]
+    rows = [fa * 3 + np.argmax(f[fa] == shared[:, k : k + 1], axis=1) for k in (0, 1)]
+    cols = [fb * 3 + np.argmax(f[fb] == shared[:, k : k + 1], axis=1) for k in (0, 1)]
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    graph = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(3 * n_f, 3 * n_f))
+    _, fan = connected_components(graph, directed=False)
+    # the first fan of each vertex keeps it, every further fan gets a copy
+    pairs, corner_pair = np.unique(np.stack([corner_v, fan], axis=1), axis=0, return_inverse=True)
+    first = np.ones(len(pairs), bool)
+    first[1:] = pairs[1:, 0] != pairs[:-1, 0]
+    if first.all():
+        return mesh.copy()
+    extra = pairs[~first, 0]
+    pair_vertex = pairs[:, 0].copy()
+    pair_vertex[~first] = n_v + np.arange(len(extra))
+    out = trimesh.Trimesh(np.concatenate([mesh.vertices, mesh.vertices[extra]]),
+                          pair_vertex[corner_pair.ravel()].reshape(-1, 3), process=False)
+    if mesh.visual.kind == "vertex":
+        colors = np.asarray(mesh.visual.vertex_colors)
+        out.visual.vertex_colors = np.concatenate([colors, colors[extra]])
+    log.debug("non-manifold vertices: %d copies made", len(extra))
+    return out
+
+
+def remove_small_components(mesh: trimesh.Trimesh, min_fraction: float) -> trimesh.Trimesh:
+    """Drop connected pieces (joined through shared edges) with less than ``min_fraction`` of the area."""
+    if len(mesh.faces) == 0 or min_fraction <= 0:
+        return mesh.copy()
+    adj = mesh.face_adjacency
+    graph = sp.coo_matrix((np.ones(len(adj)), (adj[:, 0], adj[:, 1])), shape=(len(mesh.faces),) * 2)
+    n, label = connected_components(graph, directed=False)
+    area = np.bincount(label, weights=mesh.area_faces, minlength=n)
+    big = area >= min_fraction * area.sum()
+    log.debug("components: %d of %d kept", big.sum(), n)
+    return _keep_faces(mesh, big[label])
+
+
+def decimate(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
+    """Quadric-error edge collapse (open3d) down to ``target_faces``; a smaller mesh is returned as is."""
+    if target_faces <= 0 or len(mesh.faces) <= target_faces:
+        return mesh.copy()
+    o3d = open3d()
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(mesh.vertices, np.float64)),
+                                  o3d.utility.Vector3iVector(np.asarray(mesh.faces, np.int32)))
+    colored = mesh.visual.kind == "vertex"
+    if colored:
+        m.vertex_colors = o3d.utility.Vector3dVector(np.asarray(mesh.visual.vertex_colors)[:, :3] / 255.0)
+    m = m.simplify_quadric_decimation(target_number_of_triangles=int(target_faces))
+    out = trimesh.Trimesh(np.asarray(m.vertices), np.asarray(m.triangles), process=False)
+    if colored:
+        out.visual.vertex_colors = np.clip(np.asarray(m.vertex_colors) * 255 + 0.5, 0, 255).astype(np.uint8)
+    out.remove_unreferenced_vertices()
+    log.info("decimated %d -> %d faces", len(mesh.faces), len(out.faces))
+    return out
+
+
+def clean_mesh(mesh: trimesh.Trimesh, options: MeshOptions = MeshOptions()) -> trimesh.Trimesh:
+    """Merge coincident vertices, drop degenerate/duplicate faces, make edges and vertices manifold,
+    drop small pieces, decimate to ``options.target_faces``, and clean what decimation left."""
+    out = mesh.copy()
+    out.merge_vertices(merge_tex=True, merge_norm=True)
+    out = remove_degenerate_faces(out)
+    out = remove_non_manifold_edges(out)
+    out = remove_small_components(out, options.min_component_fraction)
+    out = decimate(out, options.target_faces)
+    out = remove_degenerate_faces(out)
+    out = remove_non_manifold_edges(out)
+    out = split_non_manifold_vertices(out)
+    log.info("cleanup: %d -> %d faces", len(mesh.faces), len(out.faces))
+    return out

@@ -1,0 +1,58 @@
+"""Screened Poisson surface reconstruction from oriented points, trimmed to where the points are.
+
+Poisson closes every surface it builds: the open sides of a scene (sky, the far side of a facade) come
+back as smooth balloon surfaces far from any point. Three trims remove them: vertices of low point
+density (open3d reports the density of the octree node each vertex came from), faces outside the
+points' bounding box grown by a margin, and faces farther than a few octree cells from any point.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from recon._open3d import open3d
+from recon.surface.options import MeshOptions
+
+log = logging.getLogger(__name__)
+
+
+def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | None = None,
+                 options: MeshOptions = MeshOptions()) -> trimesh.Trimesh:
+    """Screened Poisson surface of oriented points (N, 3) with normals (N, 3), trimmed; vertex colours
+    (uint8) come from the nearest point's colour (``colors``: N x 3, uint8) when given."""
+    o3d = open3d()
+    points = np.asarray(points, np.float64)
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    pcd.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
+    with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
+            pcd, depth=options.depth, point_weight=options.point_weight, n_threads=0)
+    vertices = np.asarray(mesh.vertices)
+    faces = np.asarray(mesh.triangles)
+    density = np.asarray(density)
+    log.info("poisson depth %d: %d vertices, %d faces from %d points",
+             options.depth, len(vertices), len(faces), len(points))
+
+    keep_vertex = np.ones(len(vertices), bool)
+    if options.density_quantile > 0:
+        keep_vertex &= density >= np.quantile(density, options.density_quantile)
+    lo, hi = points.min(0), points.max(0)
+    margin = options.bbox_margin * (hi - lo).max()
+    keep_vertex &= np.all((vertices >= lo - margin) & (vertices <= hi + margin), axis=1)
+    keep_face = keep_vertex[faces].all(axis=1)
+    if options.trim_distance > 0:
+        cell = (hi - lo).max() / 2**options.depth
+        centroids = vertices[faces].mean(axis=1)
+        dist, _ = cKDTree(points).query(centroids, distance_upper_bound=options.trim_distance * cell)
+        keep_face &= np.isfinite(dist)
+    out = trimesh.Trimesh(vertices, faces[keep_face], process=False)
+    out.remove_unreferenced_vertices()
+    if colors is not None:
+        _, nearest = cKDTree(points).query(out.vertices)
+        out.visual.vertex_colors = np.asarray(colors, np.uint8)[nearest]
+    log.info("poisson trimmed to %d faces", len(out.faces))
+    return out

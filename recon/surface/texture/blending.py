@@ -1,0 +1,111 @@
+"""Local seam blending (after Waechter et al. 2014, section 4.2, "local seam levelling").
+
+After global levelling, colours still differ a little across seams (the correction is exact only at
+vertices). Along every seam edge, points a half texel apart are looked up in both patches' charts; the
+texel under each lookup is pinned to half the difference (each side moves to the mean), and the change
+fades out harmonically over a band of texels of the same chart: a Laplace problem with the pinned texels
+fixed, zero change beyond the band and free (Neumann) edges at the chart's rectangle. Adding a harmonic
+function keeps the photo's gradients, so this is Poisson editing with the photo as guidance.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+
+import numpy as np
+import scipy.sparse as sp
+from scipy import ndimage
+from scipy.sparse.linalg import spsolve
+
+from recon.surface.texture.atlas import Layout
+from recon.surface.texture.raster import sample_bilinear
+from recon.surface.texture.views import unobstructed
+
+log = logging.getLogger(__name__)
+
+
+def chart_map(lay: Layout) -> np.ndarray:
+    """The chart index of each atlas texel (-1 outside charts)."""
+    out = np.full((lay.height, lay.width), -1, np.int64)
+    for k, c in enumerate(lay.charts):
+        out[c.y:c.y + c.h, c.x:c.x + c.w] = k
+    return out
+
+
+def _edge_corners(faces, corner_xy, face, v0, v1):
+    slot0 = np.argmax(faces[face] == v0[:, None], axis=1)
+    slot1 = np.argmax(faces[face] == v1[:, None], axis=1)
+    return corner_xy[face, slot0], corner_xy[face, slot1]
+
+
+def blend_seams(atlas: np.ndarray, lay: Layout, vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray,
+                patch: np.ndarray, pairs: np.ndarray, edge_vertices: np.ndarray, cameras: Sequence,
+                depths: Sequence[np.ndarray], band: int) -> np.ndarray:
+    """The atlas (H, W, 3; float) with the colour differences left along seams blended over ``band`` texels;
+    seam points that either photo does not see clearly (``depths``: the mesh's depth map per view) are left
+    out."""
+    h, w = atlas.shape[:2]
+    a, b = pairs[:, 0], pairs[:, 1]
+    seam = (patch[a] != patch[b]) & (labels[a] >= 0) & (labels[b] >= 0)
+    if not seam.any():
+        return atlas
+    fa, fb, ev = a[seam], b[seam], edge_vertices[seam]
+    a0, a1 = _edge_corners(faces, lay.corner_xy, fa, ev[:, 0], ev[:, 1])
+    b0, b1 = _edge_corners(faces, lay.corner_xy, fb, ev[:, 0], ev[:, 1])
+    longest = np.maximum(np.linalg.norm(a1 - a0, axis=1), np.linalg.norm(b1 - b0, axis=1))
+    count = np.ceil(2 * longest).astype(np.int64) + 1
+    edge = np.repeat(np.arange(len(fa)), count)
+    t = ((np.arange(len(edge)) - np.repeat(np.cumsum(count) - count, count)) + 0.5) / count[edge]
+    clear = np.ones(len(edge), bool)
+    point = vertices[ev[edge, 0]] * (1 - t[:, None]) + vertices[ev[edge, 1]] * t[:, None]
+    for f in (fa, fb):
+        lab = labels[f][edge]
+        for j in np.unique(lab):
+            sel = np.flatnonzero(lab == j)
+            clear[sel] &= unobstructed(point[sel], cameras[j], depths[j])
+    edge, t = edge[clear], t[clear]
+    pa = a0[edge] + (a1 - a0)[edge] * t[:, None]
+    pb = b0[edge] + (b1 - b0)[edge] * t[:, None]
+    ca = sample_bilinear(atlas, pa[:, 0], pa[:, 1])
+    cb = sample_bilinear(atlas, pb[:, 0], pb[:, 1])
+    half = 0.5 * (cb - ca)
+    # pin the texel under each lookup to the mean change asked of it
+    texel = np.concatenate([np.clip(np.floor(p).astype(np.int64), 0, [w - 1, h - 1]) for p in (pa, pb)])
+    flat = texel[:, 1] * w + texel[:, 0]
+    change = np.concatenate([half, -half])
+    total = np.zeros((h * w, 3))
+    hits = np.zeros(h * w)
+    np.add.at(total, flat, change)
+    np.add.at(hits, flat, 1)
+    fixed = (hits > 0).reshape(h, w)
+    delta = (total / np.maximum(hits, 1)[:, None]).reshape(h, w, 3)
+    # harmonic fade over the band, inside each chart's rectangle
+    charts = chart_map(lay)
+    dist = ndimage.distance_transform_edt(~fixed)
+    unknown = (charts >= 0) & ~fixed & (dist <= band)
+    uy, ux = np.nonzero(unknown)
+    m = len(uy)
+    index = np.full((h, w), -1, np.int64)
+    index[uy, ux] = np.arange(m)
+    rows, cols = [], []
+    rhs, degree = np.zeros((m, 3)), np.zeros(m)
+    for dy, dx in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        ny, nx = uy + dy, ux + dx
+        ok = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
+        src, ny, nx = np.flatnonzero(ok), ny[ok], nx[ok]
+        same = charts[ny, nx] == charts[uy[src], ux[src]]
+        src, ny, nx = src[same], ny[same], nx[same]
+        degree[src] += 1
+        nb = index[ny, nx]
+        inner = nb >= 0
+        rows.append(src[inner])
+        cols.append(nb[inner])
+        np.add.at(rhs, src[~inner], delta[ny[~inner], nx[~inner]])  # pinned texels; 0 beyond the band
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    if m:
+        lap = sp.csr_matrix((-np.ones(len(rows)), (rows, cols)), shape=(m, m)) + sp.diags(degree + 1e-6)
+        delta[uy, ux] = np.asarray(spsolve(lap.tocsc(), rhs)).reshape(m, 3)
+    log.info("seam blending: %d seam edges, %d pinned and %d band texels, mean change %.2f", len(fa),
+             int(fixed.sum()), m, float(np.abs(half).mean()))
+    return np.clip(atlas + delta.astype(np.float32), 0, 255)

@@ -1,0 +1,91 @@
+"""undistort -> mvs -> fusion through the pipeline: COLMAP layout, per-view resume, a fused cloud on the surface."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import recon
+from recon.mvs.colmap_io import read_depth_map, read_normal_map
+
+REPO = Path(__file__).resolve().parents[2]
+FULL = REPO / "pipelines" / "full.yaml"
+# small and quick: the depth maps' quality is measured by tests/mvs and the benchmark
+QUICK = ["undistort.max_image_size=240", "mvs.max_image_size=240", "mvs.pyramid_levels=2", "mvs.iterations=3"]
+
+
+def run_cli(ws: Path, scene: Path, *extra: str) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "recon.cli", "run", str(FULL), "--images", str(scene / "images"),
+           "--workspace", str(ws), "-o", "executor=serial"]
+    for o in [*QUICK, *extra]:
+        cmd += ["-o", o]
+    return subprocess.run(cmd, capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module")
+def dense_workspace(sparse_workspace, small_scene, tmp_path_factory) -> Path:
+    import shutil
+
+    ws = tmp_path_factory.mktemp("dense") / "ws"
+    shutil.copytree(sparse_workspace, ws, symlinks=True)
+    done = run_cli(ws, small_scene)
+    assert done.returncode == 0, done.stderr
+    return ws
+
+
+def test_dense_layout_reads_like_colmap(dense_workspace):
+    import pycolmap
+
+    dense = dense_workspace / "dense"
+    rec = pycolmap.Reconstruction(str(dense / "sparse"))
+    assert {c.model.name for c in rec.cameras.values()} == {"PINHOLE"}
+    names = sorted(img.name for img in rec.images.values())
+    assert len(names) == 16 and all((dense / "images" / n).exists() for n in names)
+    kept = []
+    for n in names:
+        depth = read_depth_map(dense / "stereo" / "depth_maps" / f"{n}.geometric.bin")
+        normal = read_normal_map(dense / "stereo" / "normal_maps" / f"{n}.geometric.bin")
+        assert depth.ndim == 2 and normal.shape == (*depth.shape, 3)
+        kept.append(np.count_nonzero(depth) / depth.size)
+    assert np.mean(kept) > 0.3
+
+
+def test_fused_cloud_lies_on_the_ground_truth_surface(dense_workspace, small_scene):
+    figures = recon.api.evaluate(dense_workspace, small_scene)
+    fused = figures["fused"]
+    assert fused["n_points"] > 5000
+    assert fused["accuracy@0.005"] > 80  # at 240 px, a quick smoke check; quality is benchmarked elsewhere
+
+
+def test_killed_mvs_resumes_without_recomputing_finished_views(sparse_workspace, small_scene, tmp_path):
+    import shutil
+
+    ws = tmp_path / "ws"
+    shutil.copytree(sparse_workspace, ws, symlinks=True)
+    cmd = [sys.executable, "-m", "recon.cli", "run", str(FULL), "--images", str(small_scene / "images"),
+           "--workspace", str(ws), "--until", "mvs", "-o", "executor=serial"]
+    for o in QUICK:
+        cmd += ["-o", o]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    maps = lambda: sorted(ws.glob(".recon/cache/mvs/*.partial/stereo/depth_maps/*.photometric.bin"))  # noqa: E731
+    deadline = time.monotonic() + 300
+    while len(maps()) < 3:
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    finished = {p.name: p.stat().st_mtime_ns for p in maps()}
+    assert 3 <= len(finished) < 16
+    done = subprocess.run(cmd, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert f"mvs photometric: {len(finished)} of 16 already done, resuming" in done.stderr
+    out = next(ws.glob(".recon/cache/mvs/*/stereo/depth_maps"))
+    for name, mtime in finished.items():
+        assert (out / name).stat().st_mtime_ns == mtime, f"{name} was recomputed"

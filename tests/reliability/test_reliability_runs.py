@@ -1,0 +1,166 @@
+"""Runs that stop early: Ctrl-C or a kill in every stage, a full disk, an upgraded stage. Each keeps
+what was computed and the run that follows finishes with the same result."""
+
+from __future__ import annotations
+
+import contextlib
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from reliability_checks import (
+    INTERRUPTED,
+    SPARSE,
+    SPARSE_STAGES,
+    assert_one_line_error,
+    assert_same_reconstruction,
+    cache_dir,
+    cli,
+    complete_outputs,
+    partial_outputs,
+)
+
+import recon
+from recon.stage import REGISTRY
+from recon.workspace import read_json
+
+DRIVER = Path(__file__).with_name("interrupt.py")
+INTERRUPTED_STAGES = ["ingest", "features", "matching", "sfm", "export"]
+
+
+def run_args(scene: Path, ws: Path) -> list[str]:
+    return ["run", str(SPARSE), "--images", str(scene / "images"), "--workspace", str(ws),
+            "-o", "matching.chunk_pairs=20"]
+
+
+def interrupted_run(stage: str, signal_name: str, args: list[str]) -> subprocess.CompletedProcess:
+    """recon run with ``signal_name`` sent inside ``stage`` (see interrupt.py); its own session, so
+    that a SIGINT to its process group reaches recon and its workers but not pytest."""
+    return subprocess.run([sys.executable, str(DRIVER), stage, signal_name, *args], capture_output=True, text=True,
+                          timeout=300, start_new_session=True)
+
+
+def manifest_times(ws: Path) -> dict[str, list[float]]:
+    return {s: [read_json(p / "manifest.json")["finished"] for p in complete_outputs(ws, s)] for s in SPARSE_STAGES}
+
+
+@pytest.mark.parametrize("signal_name", ["SIGINT", "SIGKILL"])
+def test_stop_in_every_stage_then_rerun_gives_the_same_model(signal_name, small_scene, sparse_workspace, tmp_path):
+    """One workspace, stopped once inside each stage in turn; each run resumes the stage the one
+    before stopped in, keeps every finished stage and item, and the last run completes with the
+    same files as an uninterrupted run."""
+    ws = tmp_path / "ws"
+    args = run_args(small_scene, ws)
+    finished: dict[str, list[float]] = {}
+    for k, stage in enumerate(INTERRUPTED_STAGES):
+        proc = interrupted_run(stage, signal_name, args)
+        assert "Traceback" not in proc.stderr, proc.stderr[-3000:]
+        if signal_name == "SIGINT":
+            assert proc.returncode == 130, proc.stderr[-3000:]
+            assert proc.stderr.strip().splitlines()[-1] == INTERRUPTED
+        else:
+            assert proc.returncode == -9, proc.stderr[-3000:]
+        # the stage stopped in is not taken for complete; its partial output is kept for the next run
+        assert complete_outputs(ws, stage) == [] and len(partial_outputs(ws, stage)) == 1
+        done = SPARSE_STAGES[: SPARSE_STAGES.index(stage)]
+        assert all(len(complete_outputs(ws, s)) == 1 for s in done), proc.stderr[-3000:]
+        # what earlier runs completed was not computed again
+        now = manifest_times(ws)
+        assert all(now[s] == finished[s] for s in finished)
+        finished = {s: now[s] for s in done}
+        if stage == "features":
+            assert len(list(partial_outputs(ws, "features")[0].glob("features/*.npz"))) >= 4
+        if k and INTERRUPTED_STAGES[k - 1] in ("features", "matching"):  # per-item resume
+            what = {"features": r"features: (\d+) of 16 already done", "matching": r"matching: (\d+) pairs already done"}
+            resumed = re.search(what[INTERRUPTED_STAGES[k - 1]], proc.stderr)
+            assert resumed and int(resumed[1]) >= {"features": 4, "matching": 40}[INTERRUPTED_STAGES[k - 1]]
+    last = cli(*args)
+    assert last.returncode == 0, last.stderr[-3000:]
+    assert last.stdout.startswith("recon: ran export;")
+    now = manifest_times(ws)
+    assert {s: now[s] for s in finished} == finished
+    assert all(partial_outputs(ws, s) == [] for s in SPARSE_STAGES)
+    assert_same_reconstruction(ws, sparse_workspace)
+
+
+# ---------------------------------------------------------------------------------------------
+# A full disk
+
+
+@contextlib.contextmanager
+def small_disk(path: Path, size: int):
+    """A tmpfs of ``size`` bytes mounted at ``path`` (needs root); unmounted afterwards."""
+    path.mkdir(parents=True, exist_ok=True)
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                      capture_output=True).returncode:
+        pytest.skip("cannot mount a tmpfs here (needs root): the full-disk test is skipped")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "-l", str(path)], check=True)
+
+
+def resize(path: Path, size: int) -> None:
+    subprocess.run(["mount", "-o", f"remount,size={size}", str(path)], check=True)
+
+
+@pytest.mark.parametrize("stage", ["matching", "sfm"])
+def test_full_disk_keeps_the_last_complete_stage_and_says_so(stage, small_scene, sparse_workspace, tmp_path):
+    """The workspace's disk fills up in ``stage`` (its earlier stages copied from a finished run):
+    one line says so and names the last complete stage, which is intact; once space is freed, the
+    same command finishes with the same model. matching meets a disk too small for its next pairs
+    (COLMAP's matcher would abort the process when SQLite hits a full disk); sfm fills it while
+    COLMAP writes the model (which COLMAP does not notice: the truncated model must not be taken
+    for complete)."""
+    with small_disk(tmp_path / "disk", 64 << 20) as disk:
+        ws = disk / "ws"
+        (ws / ".recon" / "cache").mkdir(parents=True)
+        before = SPARSE_STAGES[: SPARSE_STAGES.index(stage)]
+        for name in before:
+            shutil.copytree(cache_dir(sparse_workspace, name), cache_dir(ws, name), symlinks=True)
+        used = shutil.disk_usage(disk).used
+        free = {"matching": 256 << 10, "sfm": 160 << 10}[stage]
+        resize(disk, used + free)
+        args = run_args(small_scene, ws)
+        full = cli(*args)
+        message = assert_one_line_error(full, f"{stage}: the disk holding {ws} is full (")
+        assert message.endswith(f"completed stages are kept (last: {before[-1]}): free some space and run the "
+                                "same command again to resume")
+        assert complete_outputs(ws, stage) == []
+        for name in before:  # the completed stages are intact
+            kept, = complete_outputs(ws, name)
+            original, = complete_outputs(sparse_workspace, name)
+            assert sorted(p.name for p in kept.rglob("*")) == sorted(p.name for p in original.rglob("*"))
+            assert read_json(kept / "manifest.json") == read_json(original / "manifest.json")
+        resize(disk, 64 << 20)
+        again = cli(*args)
+        assert again.returncode == 0, again.stderr[-3000:]
+        assert again.stdout.startswith(f"recon: ran {stage}")
+        assert_same_reconstruction(ws, sparse_workspace)
+
+
+# ---------------------------------------------------------------------------------------------
+# Stage versions
+
+
+def test_upgraded_stage_invalidates_only_its_cache_and_what_follows(copy_workspace, small_scene, monkeypatch):
+    """A new version of matching re-runs matching and the stages after it; the stages before it stay
+    cached, and the old matching output stays in the cache (going back costs nothing)."""
+    monkeypatch.setattr(type(REGISTRY["matching"]), "version", REGISTRY["matching"].version + 1)
+    rows = {r.name: r for r in recon.api.status(SPARSE, images=str(small_scene / "images"),
+                                                 workspace=str(copy_workspace))}
+    assert rows["matching"].state == "stale"
+    assert rows["matching"].why == f"stage version {REGISTRY['matching'].version - 1} -> {REGISTRY['matching'].version}"
+    assert [rows[s].state for s in ("ingest", "features")] == ["done", "done"]
+    assert rows["sfm"].why == "upstream changed: matching"
+    features_before = complete_outputs(copy_workspace, "features")
+    result = recon.run(SPARSE, images=str(small_scene / "images"), workspace=str(copy_workspace))
+    assert result.ran == ["matching", "sfm", "export"]
+    assert result.cached == ["ingest", "calibrate", "preprocess", "features"]
+    assert complete_outputs(copy_workspace, "features") == features_before
+    assert len(complete_outputs(copy_workspace, "matching")) == 2
+    monkeypatch.undo()
+    assert recon.run(SPARSE, images=str(small_scene / "images"), workspace=str(copy_workspace)).ran == []

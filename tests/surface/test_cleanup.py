@@ -1,0 +1,78 @@
+import numpy as np
+import trimesh
+
+from recon.surface.cleanup import (
+    clean_mesh,
+    decimate,
+    remove_degenerate_faces,
+    remove_non_manifold_edges,
+    remove_small_components,
+    split_non_manifold_vertices,
+)
+from recon.surface.options import MeshOptions
+
+
+def _sphere_with_junk():
+    """A sphere, a far-away small tetrahedron, and three bad faces: a repeated-vertex face, a zero-area face
+    on three collinear new vertices, and a duplicate of face 0."""
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    tet = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    tet.apply_translation((5, 0, 0))
+    base = trimesh.util.concatenate([sphere, tet])
+    v = np.concatenate([base.vertices, [[0, 0, 3], [0, 0, 3.5], [0, 0, 4]]])
+    n = len(base.vertices)
+    f = np.concatenate([base.faces, [[0, 1, 1], [n, n + 1, n + 2], base.faces[0]]])
+    mesh = trimesh.Trimesh(v, f, process=False)
+    mesh.visual.vertex_colors = np.tile([10, 200, 30, 255], (len(v), 1)).astype(np.uint8)
+    return mesh, sphere
+
+
+def test_degenerate_faces_go_and_nothing_else():
+    mesh, sphere = _sphere_with_junk()
+    out = remove_degenerate_faces(mesh)
+    assert len(out.faces) == len(sphere.faces) + 12  # sphere + the cube's 12 faces
+    assert len(out.vertices) == len(sphere.vertices) + 8  # the collinear vertices are unreferenced now
+
+
+def test_floating_piece_goes():
+    mesh, sphere = _sphere_with_junk()
+    out = remove_small_components(remove_degenerate_faces(mesh), 0.01)
+    assert len(out.faces) == len(sphere.faces)
+    assert np.allclose(np.sort(out.vertices, axis=0), np.sort(sphere.vertices, axis=0))
+    assert out.is_watertight
+    assert (np.asarray(out.visual.vertex_colors)[:, 1] == 200).all()
+
+
+def test_non_manifold_edge_keeps_two_largest_faces():
+    v = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 0, 0.2]], float)
+    f = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])  # face 2 is the smallest on edge 0-1
+    out = remove_non_manifold_edges(trimesh.Trimesh(v, f, process=False))
+    assert len(out.faces) == 2
+    assert np.isclose(out.area, 1.0)
+
+
+def test_bowtie_vertex_is_split():
+    v = np.array([[0, 0, 0], [1, 1, 0], [1, -1, 0], [-1, 1, 0], [-1, -1, 0]], float)
+    f = np.array([[0, 1, 2], [0, 4, 3]])  # two triangles meeting only at vertex 0
+    out = split_non_manifold_vertices(trimesh.Trimesh(v, f, process=False))
+    assert len(out.vertices) == 6 and len(out.faces) == 2
+    assert len(set(out.faces[:, 0])) == 2
+    assert np.allclose(out.vertices[out.faces[0, 0]], out.vertices[out.faces[1, 0]])
+    # a manifold mesh is left as it is
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    assert len(split_non_manifold_vertices(sphere).vertices) == len(sphere.vertices)
+
+
+def test_decimate_reaches_target_and_keeps_shape():
+    sphere = trimesh.creation.icosphere(subdivisions=5)
+    out = decimate(sphere, 2000)
+    assert len(out.faces) <= 2000 and len(out.faces) > 1500
+    r = np.linalg.norm(out.vertices, axis=1)
+    assert np.abs(r - 1).max() < 0.02
+
+
+def test_clean_mesh_pipeline():
+    mesh, sphere = _sphere_with_junk()
+    out = clean_mesh(mesh, MeshOptions(min_component_fraction=0.01, target_faces=0))
+    assert len(out.faces) == len(sphere.faces)
+    assert out.is_watertight
