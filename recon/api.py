@@ -192,5 +192,6 @@ def demo(workspace: str | Path = "demo_workspace", config: str | Path | None = N
     if not (scene / "gt" / "scene.json").exists():
         log.info("demo: rendering the synthetic demo scene into %s", scene)
         synth(scene, views=24, width=640, height=480, seed=0)
-    run(config or DEMO_CONFIG, images=str(scene / "images"), workspace=str(workspace))
+    run(config or DEMO_CONFIG, images=str(scene / "images"), workspace=str(workspace),
+        overrides={"report.gt": str(scene)})
     return evaluate(workspace, scene)

@@ -134,6 +134,10 @@ def _dispatch(args) -> int:
     if args.command == "demo":
         figures = api.demo(args.workspace, args.config)
         print(api.format_eval(figures))
+        ws = Path(args.workspace)
+        for name in ("textured.glb", "report.html"):
+            if (ws / name).exists():
+                print(f"recon: {name}: {ws / name}")
         return 0
     if args.command == "view":
         return _view(Path(args.workspace), args.port)

@@ -12,6 +12,8 @@ import multiprocessing
 import os
 import re
 import signal
+import threading
+import time
 
 from recon.config import ConfigError
 
@@ -59,7 +61,10 @@ class Executor:
             # forkserver: workers start from a clean process, so threads the parent may hold
             # (BLAS, COLMAP's thread pools) cannot deadlock a forked child.
             ctx = multiprocessing.get_context("forkserver")
-            return cf.ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx, initializer=_leave_sigint)
+            # the server imports the heavy libraries once, so each worker starts in milliseconds
+            ctx.set_forkserver_preload(["numpy", "cv2", "pycolmap", "recon.sparse.features", "recon.logs"])
+            return cf.ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx, initializer=_worker_setup,
+                                          initargs=(os.getpid(),))
         from dask.distributed import Client, LocalCluster
 
         if self.spec.startswith("dask-local:"):
@@ -73,7 +78,10 @@ class Executor:
 
     def shutdown(self) -> None:
         if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            if isinstance(self._pool, cf.ProcessPoolExecutor):
+                self._pool.shutdown(wait=True, cancel_futures=True)
+            else:  # Dask's executor (its shutdown has no cancel_futures)
+                self._pool.shutdown(wait=True)
             self._pool = None
         if self._client is not None:
             self._client.close()
@@ -83,11 +91,25 @@ class Executor:
             self._cluster = None
 
 
-def _leave_sigint() -> None:
+def _worker_setup(main_pid: int) -> None:
     """Pool workers ignore Ctrl-C (which the terminal sends to every process of the run): the main
     process stops the run and the pool lets each worker finish its item, so no traceback is printed
-    and no item in flight is lost."""
+    and no item in flight is lost. They exit when the main process dies (``kill -9``, the OOM
+    killer): an orphaned pool would otherwise idle forever, holding memory and the terminal."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with, args=(main_pid,), daemon=True, name="recon-orphan-watch").start()
+
+
+def _exit_with(pid: int, every: float = 1.0) -> None:
+    import psutil
+
+    try:
+        main = psutil.Process(pid)
+        while main.is_running() and main.status() != psutil.STATUS_ZOMBIE:
+            time.sleep(every)
+    except psutil.NoSuchProcess:
+        pass
+    os._exit(1)
 
 
 class _SerialExecutor(cf.Executor):

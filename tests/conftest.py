@@ -10,6 +10,8 @@ import pytest
 import recon
 
 REPO = Path(__file__).resolve().parents[1]
+#: pipelines/sparse.yaml with single-threaded (bit-identical) mapping: tests compare models across runs
+SPARSE_TEST = REPO / "tests" / "sparse_test.yaml"
 
 
 @pytest.fixture(scope="session")
@@ -26,7 +28,7 @@ def small_scene(tmp_path_factory) -> Path:
 def sparse_workspace(small_scene, tmp_path_factory) -> Path:
     """A completed sparse run (ingest .. export) on the small scene; tests must not modify it."""
     ws = tmp_path_factory.mktemp("ws") / "sparse"
-    recon.run(REPO / "pipelines" / "sparse.yaml", images=str(small_scene / "images"), workspace=str(ws))
+    recon.run(SPARSE_TEST, images=str(small_scene / "images"), workspace=str(ws))
     return ws
 
 

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from skimage.exposure import equalize_adapthist
 
 from recon.imaging.intrinsics import Intrinsics
 from recon.imaging.operation import Operation
@@ -41,6 +40,8 @@ def clahe(image: np.ndarray, camera: Intrinsics | None, options: ClaheOptions):
     else:
         h, w = lightness.shape
         kernel = (max(1, h // options.tiles), max(1, w // options.tiles))
+        from skimage.exposure import equalize_adapthist  # scikit-image is slow to import
+
         new = equalize_adapthist(lightness, kernel_size=kernel, clip_limit=options.clip_limit / _CLAHE_BINS,
                                  nbins=_CLAHE_BINS).astype(np.float32)
     return with_lab_lightness(new, lab, image.dtype), camera

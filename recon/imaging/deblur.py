@@ -24,7 +24,6 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from skimage.restoration import richardson_lucy, wiener
 
 from recon.imaging.intrinsics import Intrinsics
 from recon.imaging.operation import Operation
@@ -152,6 +151,8 @@ class WienerOptions(KernelOptions):
 def deblur_wiener(image: np.ndarray, camera: Intrinsics | None, options: WienerOptions):
     check_image(image)
     psf = kernel_for(image, options)
+    from skimage.restoration import wiener  # scikit-image (and scipy.signal) are slow to import
+
     return _per_channel(image, psf, lambda x, k: wiener(x, k, options.balance, clip=False), taper=True), camera
 
 
@@ -161,6 +162,8 @@ class RichardsonLucyOptions(KernelOptions):
 
 
 def deblur_richardson_lucy(image: np.ndarray, camera: Intrinsics | None, options: RichardsonLucyOptions):
+    from skimage.restoration import richardson_lucy  # scikit-image (and scipy.signal) are slow to import
+
     check_image(image)
     psf = kernel_for(image, options)
 

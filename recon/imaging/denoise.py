@@ -11,7 +11,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from skimage.restoration import denoise_nl_means
 
 from recon.imaging.intrinsics import Intrinsics
 from recon.imaging.operation import Operation
@@ -87,6 +86,8 @@ def nl_means(image: np.ndarray, camera: Intrinsics | None, options: NLMeansOptio
     patch, search = options.patch_size | 1, options.search_size | 1
     if image.dtype == np.uint8:
         return cv2.fastNlMeansDenoising(image, None, float(h * 255.0), patch, search), camera
+    from skimage.restoration import denoise_nl_means  # scikit-image is slow to import
+
     out = denoise_nl_means(to_float(image), h=h, patch_size=patch, patch_distance=search // 2, fast_mode=True,
                            channel_axis=-1 if image.ndim == 3 else None)
     return from_float(out, image.dtype), camera

@@ -27,7 +27,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
-import av
 import cv2
 import numpy as np
 from PIL import Image
@@ -65,6 +64,8 @@ class Keyframe:
 
 def _decode(video_path: str | Path, fmt: str) -> Iterator[tuple[int, float, np.ndarray]]:
     """(index, time in seconds, upright frame as ``fmt``: 'gray' or 'rgb24') for every frame."""
+    import av  # imported here: PyAV takes ~0.1 s to load, which every `recon` command would pay
+
     with av.open(str(video_path)) as container:
         stream = container.streams.video[0]
         stream.thread_type = "AUTO"

@@ -2,10 +2,20 @@
 
 ``views.select_problems`` picks source views and depth ranges from a sparse model;
 ``stereo.photometric_view`` / ``stereo.geometric_view`` compute one view's maps in COLMAP's layout;
-``patchmatch`` holds the algorithm; ``colmap_io`` reads and writes COLMAP's ``.bin`` maps.
+``patchmatch`` holds the algorithm; ``colmap_io`` reads and writes COLMAP's ``.bin`` maps;
+``bench`` measures speed and accuracy.
 
-llvmlite (numba's compiler) must be loaded before pycolmap: with pycolmap 4.2.1's wheel loaded first,
-numba's first compilation corrupts the heap and aborts the process. Importing this package loads it.
+numba's compiler (llvmlite) must be loaded before pycolmap: with pycolmap 4.2.1's wheel loaded
+first, numba's first compilation of a kernel (an empty or stale cache) corrupts the heap and aborts
+the process; kernels loaded from numba's cache are unaffected. Importing this package loads llvmlite.
 """
 
-import llvmlite.binding  # noqa: F401  (load order: see above)
+import logging
+import sys
+
+if "pycolmap" in sys.modules and "llvmlite.binding" not in sys.modules:
+    logging.getLogger(__name__).warning(
+        "pycolmap was imported before numba: compiling the PatchMatch kernels may abort the process; "
+        "import recon.mvs (or numba) before pycolmap")
+
+import llvmlite.binding  # noqa: E402, F401  (load order: see above)

@@ -62,8 +62,10 @@ def depth_scores(depth: np.ndarray, truth: np.ndarray, tolerance: float = 0.01) 
     return float((error < tolerance).mean()), float(kept.sum() / max(surface.sum(), 1))
 
 
-def prepare_synthetic(root: Path, views: int, width: int, height: int, seed: int = 0) -> Path:
-    """Render the synthetic scene and build its dense workspace (sparse points from the true depth)."""
+def prepare_synthetic(root: Path, views: int, width: int, height: int, seed: int = 0,
+                      path: str = "orbit") -> Path:
+    """Render the synthetic scene (``path`` 'orbit' or 'line') and build its dense workspace, the
+    sparse points sampled on the true depth maps."""
     from recon.mvs.gt_workspace import make_dense_workspace, points_from_depths
     from recon.mvs.views import ViewCamera
     from recon.synth import load_scene, render_scene
@@ -73,7 +75,7 @@ def prepare_synthetic(root: Path, views: int, width: int, height: int, seed: int
         return dense
     if root.exists():
         shutil.rmtree(root)
-    info = render_scene(root / "scene", views=views, width=width, height=height, seed=seed)
+    info = render_scene(root / "scene", views=views, width=width, height=height, seed=seed, path=path)
     cams = [ViewCamera(name, c.K, c.R, c.t, c.width, c.height) for name, c in info.cameras().items()]
     depths = [load_scene(info.root).depth(cam.name) for cam in cams]
     rec = points_from_depths(cams, depths, seed=seed)
@@ -100,7 +102,8 @@ def run_views(dense: Path, options: MVSOptions, max_views: int) -> dict:
     wall and CPU seconds, and this process's peak RSS."""
     import pycolmap
 
-    from recon.mvs.stereo import geometric_view, photometric_view
+    from recon.mvs.colmap_io import read_depth_map
+    from recon.mvs.stereo import geometric_view, map_path, photometric_view
     from recon.mvs.views import select_problems
 
     out = dense / "stereo"
@@ -121,7 +124,8 @@ def run_views(dense: Path, options: MVSOptions, max_views: int) -> dict:
         timings[problem.ref][0] += time.perf_counter() - wall
         timings[problem.ref][1] += time.process_time() - cpu
     per_view = [timings[p.ref] for p in measured]
-    return {"views": [p.ref for p in measured], "wall": [w for w, _ in per_view],
+    height, width = read_depth_map(map_path(out, "depth", measured[0].ref, "geometric")).shape
+    return {"views": [p.ref for p in measured], "size": f"{width}x{height}", "wall": [w for w, _ in per_view],
             "cpu": [c for _, c in per_view],
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
@@ -182,11 +186,11 @@ def fountain_run(root: Path, dataset: Path, max_views: int, options: MVSOptions)
     return run_views(prepare_fountain(root, dataset), options, max_views)
 
 
-def _row(label: str, result: dict, size: str) -> str:
+def _row(label: str, result: dict) -> str:
     wall, cpu = np.array(result["wall"]), np.array(result["cpu"])
     acc = f"{100 * result['accuracy']:.1f}" if "accuracy" in result else "-"
     comp = f"{100 * result['completeness']:.1f}" if "completeness" in result else "-"
-    return (f"| {label:<18} | {size:>9} | {len(wall):>5} | {wall.mean():>8.1f} | {wall.max():>7.1f} | "
+    return (f"| {label:<18} | {result['size']:>9} | {len(wall):>5} | {wall.mean():>8.1f} | {wall.max():>7.1f} | "
             f"{cpu.mean():>7.1f} | {result['peak_rss_mb']:>8.0f} | {acc:>8} | {comp:>8} |")
 
 
@@ -208,13 +212,13 @@ def main(argv: list[str] | None = None) -> int:
     if not args.skip_synthetic:
         synth = in_fresh_process(synthetic_run, cache / f"synthetic-{args.synthetic_views}-{width}x{height}",
                                  args.synthetic_views, width, height, options)
-        rows.append(_row("synthetic", synth, f"{width}x{height}"))
+        rows.append(_row("synthetic", synth))
     dataset = datasets_root() / "fountain_p11"
     if not args.skip_fountain:
         if dataset.is_dir():
             fountain = in_fresh_process(fountain_run, cache / "fountain_p11", dataset, args.fountain_views,
                                         options)
-            rows.append(_row("fountain_p11", fountain, "1536x1024"))
+            rows.append(_row("fountain_p11", fountain))
         else:
             log.warning("fountain_p11 absent at %s: skipped", dataset)
     threads = options.num_threads or os.cpu_count()

@@ -1,10 +1,14 @@
 """Read and write COLMAP dense depth and normal maps (``stereo/{depth,normal}_maps/*.bin``).
 
 The format is an ASCII header ``W&H&C&`` followed by little-endian float32 values stored channel by
-channel: COLMAP's ``Mat<float>`` keeps ``data[c * H * W + row * W + col]``. A depth map (C = 1) is
-therefore plain row-major H x W; a normal map (C = 3) is three H x W planes, which this module turns
-into the H x W x 3 arrays recon uses. Depth is camera z (0 = no depth); normals are unit vectors in the
-camera frame, facing the camera (0 vector = no normal).
+channel: COLMAP's ``mvs::Mat<float>`` reads the bytes into ``data`` and reads a value as
+``data[c * H * W + row * W + col]``. A depth map (C = 1) is plain row-major H x W; a normal map
+(C = 3) is three H x W planes, turned here into the H x W x 3 arrays recon uses. Depth is camera z
+(0 = no depth); normals are unit vectors in the camera frame, facing the camera (0 = no normal).
+
+pycolmap 4.2.1's ``NormalMap.from_array`` / ``to_array`` copy an H x W x 3 array's bytes as they are
+(pixel-interleaved), so a normal map written by ``NormalMap.from_array(n).write`` is misread by
+COLMAP's own stereo fusion (the tests show it); this module writes the layout the C++ code reads.
 """
 
 from __future__ import annotations
@@ -39,7 +43,7 @@ def write_map(path: str | os.PathLike, array: np.ndarray) -> Path:
         raise ValueError(f"expected an H x W or H x W x C array, got shape {array.shape}")
     height, width, channels = array.shape
     header = f"{width}&{height}&{channels}&".encode("ascii")
-    payload = np.ascontiguousarray(array.transpose(2, 0, 1)).astype("<f4").tobytes()
+    payload = np.ascontiguousarray(array.transpose(2, 0, 1), dtype="<f4").tobytes()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)

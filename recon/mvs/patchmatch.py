@@ -13,11 +13,15 @@ The variant follows Gipuma (Galliani et al., ICCV 2015) and ACMH/ACMM (Xu and Ta
   perturbation range halving every sweep (Gipuma, ACMM);
 * the photometric cost is 1 - NCC with bilateral weights (COLMAP, ACMM) over a window sampled with a
   stride (ACMM's 11 x 11 window read every second pixel), warped to each source view through the
-  plane-induced homography;
+  plane-induced homography, linearised at the window centre (one affine warp per window: a departure
+  that saves a division per sample and is negligible unless the plane is seen nearly edge-on);
 * multi-view aggregation is the mean of the K best source costs (Gipuma's "best K"); this departs from
   ACMM's probabilistic per-pixel view-selection weights, which cost more per hypothesis;
 * coarse to fine (ACMM's multi-scale scheme without its detail restorer): each finer level starts from
-  the coarser planes re-intersected with its own pixel rays, then runs a few sweeps;
+  the coarser planes re-intersected with its own pixel rays, then runs a few sweeps; there, each
+  pixel is matched only against the K sources that were best for its upsampled plane (a cheap form
+  of view selection: it divides the cost of the fine levels by about S / K), and the finest level
+  propagates from the four near regions only; a candidate equal to the pixel's plane is skipped;
 * geometric consistency (COLMAP's geom_consistency, ACMM's ACMM+geom): a second pass adds to each
   source's cost the capped forward-backward reprojection error through that source's depth map;
 * filtering keeps a pixel when its photometric cost is low and enough source depth maps agree with it
@@ -282,6 +286,8 @@ def _mean_of_best(costs, mask, k, scratch):
             scratch[j + 1] = v
             n += 1
     k = min(k, n)
+    if k == 0:
+        return MAX_COST
     total = 0.0
     for i in range(k):
         total += scratch[i]
@@ -381,7 +387,7 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
         width = dims[s, 0]
         height = dims[s, 1]
         cz = h20 * px + h21 * py + h22
-        if cz <= 0.0:
+        if not cz > 1e-6:  # behind (or at) the source camera; also keeps the warp finite
             costs[s] = worst
             continue
         cu = (h00 * px + h01 * py + h02) / cz

@@ -90,31 +90,40 @@ def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
     """Geometric-consistency refinement (when ``options.geometric``) and filtering of the photometric
     maps of ``problem.ref`` against its sources' photometric depth maps; returns the depth map's path.
 
-    Needs the photometric depth maps of the reference and its sources in ``out_dir``.
+    Needs the reference's photometric maps in ``out_dir``; sources without a photometric depth map
+    (images that got no problem of their own) are left out.
     """
     _use_threads(options)
     start = time.perf_counter()
     images = Path(dense_dir) / "images"
     depth = read_depth_map(map_path(out_dir, "depth", problem.ref, "photometric"))
     normal = read_normal_map(map_path(out_dir, "normal", problem.ref, "photometric"))
-    src_depths = [read_depth_map(map_path(out_dir, "depth", name, "photometric")) for name in problem.sources]
-    ref, ref_cam = load_grey(images / problem.ref, problem.cameras[problem.ref], depth.shape[::-1])
-    srcs, src_cams = [], []
-    for name, src_depth in zip(problem.sources, src_depths):
-        image, cam = load_grey(images / name, problem.cameras[name], src_depth.shape[::-1])
-        srcs.append(image)
-        src_cams.append(cam)
-    everything = (1 << len(src_depths)) - 1
-    state = patchmatch.State(depth, normal, np.zeros_like(depth), np.full(depth.shape, everything, np.int64))
-    if options.geometric and options.geometric_iterations > 0:
-        state = patchmatch.geometric_depth(ref, srcs, ref_cam, src_cams, src_depths, state,
-                                           (problem.depth_min, problem.depth_max), options,
-                                           _seed(options, problem.ref))
-    state = patchmatch.filter_depth(ref, srcs, ref_cam, src_cams, src_depths, state, options)
-    write_map(map_path(out_dir, "normal", problem.ref, "geometric"), state.normal)
-    path = write_map(map_path(out_dir, "depth", problem.ref, "geometric"), state.depth)
+    sources = [name for name in problem.sources if map_path(out_dir, "depth", name, "photometric").exists()]
+    if len(sources) < len(problem.sources):
+        log.warning("%s: no photometric depth map for sources %s", problem.ref,
+                    sorted(set(problem.sources) - set(sources)))
+    if sources:
+        src_depths = [read_depth_map(map_path(out_dir, "depth", name, "photometric")) for name in sources]
+        ref, ref_cam = load_grey(images / problem.ref, problem.cameras[problem.ref], depth.shape[::-1])
+        srcs, src_cams = [], []
+        for name, src_depth in zip(sources, src_depths):
+            image, cam = load_grey(images / name, problem.cameras[name], src_depth.shape[::-1])
+            srcs.append(image)
+            src_cams.append(cam)
+        everything = (1 << len(sources)) - 1
+        state = patchmatch.State(depth, normal, np.zeros_like(depth), np.full(depth.shape, everything, np.int64))
+        if options.geometric and options.geometric_iterations > 0:
+            state = patchmatch.geometric_depth(ref, srcs, ref_cam, src_cams, src_depths, state,
+                                               (problem.depth_min, problem.depth_max), options,
+                                               _seed(options, problem.ref))
+        state = patchmatch.filter_depth(ref, srcs, ref_cam, src_cams, src_depths, state, options)
+        depth, normal = state.depth, state.normal
+    else:
+        depth, normal = np.zeros_like(depth), np.zeros_like(normal)
+    write_map(map_path(out_dir, "normal", problem.ref, "geometric"), normal)
+    path = write_map(map_path(out_dir, "depth", problem.ref, "geometric"), depth)
     log.info("%s: geometric depth in %.1f s, %.0f%% of pixels kept", problem.ref,
-             time.perf_counter() - start, 100.0 * np.count_nonzero(state.depth) / state.depth.size)
+             time.perf_counter() - start, 100.0 * np.count_nonzero(depth) / depth.size)
     return path
 
 

@@ -1,9 +1,11 @@
 """SIFT features of one photo through pycolmap, at a bounded image size.
 
-COLMAP's default maximum image size (3200 px) with its default first octave (-1, i.e. the image
-upsampled 2x) spends most of its time on scales that rarely survive matching on large photos. recon
-downsizes with area interpolation (anti-aliased) to ``max_image_size`` and, by default, upsamples
-only small images (``first_octave: auto``), then scales keypoints back to the photo's pixel frame.
+COLMAP's default maximum image size (3200 px) with its default first octave (-1, i.e. every image
+upsampled 2x inside SIFT) spends most of its time on the finest scales. recon downsizes large photos
+with area interpolation (anti-aliased) to ``max_image_size``, upsizes small ones to ``min_image_size``
+(a gentler version of the 2x upsampling, which small photos need for enough precise features), runs
+SIFT from octave 0, and scales keypoints back to the photo's pixel frame. On temple_ring (640 px)
+upsizing to 960 px at octave 0 gave pose AUC@5 82.0 against 81.9 with COLMAP's octave -1, for 0.7x the CPU time.
 """
 
 from __future__ import annotations
@@ -24,8 +26,9 @@ ONNX_ONLY = {"aliked", "aliked_n16", "aliked_n16rot", "aliked_n32", "aliked_t16"
 @dataclass(frozen=True)
 class SiftSettings:
     max_image_size: int
+    min_image_size: int
     max_num_features: int
-    first_octave: int | None  # None = auto
+    first_octave: int
     peak_threshold: float
     edge_threshold: float
     estimate_affine_shape: bool
@@ -34,17 +37,14 @@ class SiftSettings:
     darkness_adaptivity: bool
 
 
-#: below this size (longest side, after resizing) the image is upsampled for the first octave
-AUTO_UPSAMPLE_BELOW = 1200
-
-
 #: JPEG decoding at 1/8, 1/4, 1/2 scale (libjpeg's DCT scaling: cheap, and it averages like an area filter)
 _REDUCED = ((8, cv2.IMREAD_REDUCED_GRAYSCALE_8), (4, cv2.IMREAD_REDUCED_GRAYSCALE_4),
             (2, cv2.IMREAD_REDUCED_GRAYSCALE_2))
 
 
-def load_gray(path: Path, max_size: int) -> tuple[np.ndarray, float, float]:
-    """The photo in 8-bit grey, downsized to ``max_size`` with area interpolation; and the scales.
+def load_gray(path: Path, max_size: int, min_size: int = 0) -> tuple[np.ndarray, float, float]:
+    """The photo in 8-bit grey, downsized to ``max_size`` with area interpolation (or upsized to
+    ``min_size``, bicubic, when smaller); and the scales from these pixels to the photo's.
 
     A JPEG much larger than ``max_size`` is decoded at the largest 1/2, 1/4 or 1/8 reduction that
     still exceeds ``max_size``, so a 12000 px photo never occupies memory at full size.
@@ -58,9 +58,11 @@ def load_gray(path: Path, max_size: int) -> tuple[np.ndarray, float, float]:
     if (img.shape[0] > img.shape[1]) != (h > w):  # OpenCV applied an EXIF rotation
         w, h = h, w
     scale = min(1.0, max_size / max(img.shape)) if max_size > 0 else 1.0
-    if scale < 1.0:
+    if min_size > max(img.shape):
+        scale = min_size / max(img.shape)
+    if scale != 1.0:
         size = (max(1, round(img.shape[1] * scale)), max(1, round(img.shape[0] * scale)))
-        img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+        img = cv2.resize(img, size, interpolation=cv2.INTER_AREA if scale < 1.0 else cv2.INTER_CUBIC)
     return np.ascontiguousarray(img), w / img.shape[1], h / img.shape[0]
 
 
@@ -68,14 +70,13 @@ def extract_sift(path: Path, s: SiftSettings) -> tuple[np.ndarray, np.ndarray]:
     """Keypoints (N x 4: x, y, scale, orientation; photo pixel frame) and uint8 descriptors (N x 128)."""
     import pycolmap
 
-    img, sx, sy = load_gray(path, s.max_image_size)
+    img, sx, sy = load_gray(path, s.max_image_size, s.min_image_size)
     opts = pycolmap.FeatureExtractionOptions()
     opts.num_threads = 1
     opts.max_image_size = -1
     sift = opts.sift
     sift.max_num_features = s.max_num_features
-    sift.first_octave = s.first_octave if s.first_octave is not None else (
-        -1 if max(img.shape) < AUTO_UPSAMPLE_BELOW else 0)
+    sift.first_octave = s.first_octave
     sift.peak_threshold = s.peak_threshold
     sift.edge_threshold = s.edge_threshold
     sift.estimate_affine_shape = s.estimate_affine_shape

@@ -23,7 +23,7 @@ def reconstruct(database: Path, images: Path, cfg, seed: int) -> list:
             opts.min_model_size = cfg.min_model_size
             opts.multiple_models = cfg.multiple_models
             opts.random_seed = seed
-            opts.num_threads = -1
+            opts.num_threads = _threads(cfg)
             models = pycolmap.global_mapping(str(database), str(images), scratch, opts)
         else:
             models = pycolmap.incremental_mapping(str(database), str(images), scratch,
@@ -43,7 +43,7 @@ def incremental_options(cfg, seed: int):
     opts.min_model_size = cfg.min_model_size
     opts.multiple_models = cfg.multiple_models
     opts.random_seed = seed
-    opts.num_threads = -1
+    opts.num_threads = _threads(cfg)
     opts.ba_refine_focal_length = cfg.refine_focal_length
     opts.ba_refine_principal_point = cfg.refine_principal_point
     opts.ba_refine_extra_params = cfg.refine_extra_params
@@ -55,8 +55,15 @@ def incremental_options(cfg, seed: int):
     mapper.abs_pose_min_num_inliers = cfg.abs_pose_min_num_inliers
     mapper.ba_local_num_images = cfg.ba_local_images
     mapper.random_seed = seed
+    mapper.num_threads = _threads(cfg)
     opts.triangulation.random_seed = seed
     return opts
+
+
+def _threads(cfg) -> int:
+    """COLMAP's thread count: all cores, or one where bit-identical re-runs are asked for (Ceres'
+    multi-threaded sums, and so the incremental mapper's later decisions, depend on scheduling)."""
+    return 1 if cfg.deterministic else -1
 
 
 def final_bundle_adjustment(rec, cfg) -> None:
@@ -71,6 +78,7 @@ def final_bundle_adjustment(rec, cfg) -> None:
     opts.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
     opts.ceres.solver_options.max_num_iterations = cfg.final_ba_iterations
     opts.ceres.solver_options.function_tolerance = 1e-7
+    opts.ceres.solver_options.num_threads = _threads(cfg)
     pycolmap.bundle_adjustment(rec, opts)
 
 

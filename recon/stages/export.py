@@ -35,6 +35,10 @@ class Export(Stage):
         if cfg.colmap_text:
             (ctx.out / "sparse_text").mkdir(exist_ok=True)
             rec.write_text(str(ctx.out / "sparse_text"))
+            spaced = [img.name for img in rec.images.values() if any(c.isspace() for c in img.name)]
+            if spaced:  # COLMAP's text reader splits lines at spaces
+                ctx.log.warning("sparse_text: %d photo names hold spaces (e.g. '%s'), which COLMAP's text format "
+                                "cannot represent: read the binary model sparse/0 instead", len(spaced), spaced[0])
         if cfg.points:
             summary["points"] = write_points_ply(rec, ctx.out / "points.ply")
         if cfg.transforms:

@@ -24,8 +24,10 @@ class FeaturesConfig:
     type: str = opt("sift", "feature type; only 'sift' runs on the CPU pycolmap wheel")
     max_image_size: int = opt(1600, "longest image side for extraction (photos are downsized, anti-aliased)", gt=0)
     max_num_features: int = opt(8192, "keep at most this many features per photo", gt=0)
-    first_octave: int | None = opt(None, "SIFT first octave: -1 upsamples 2x; null = -1 below 1200 px, else 0",
-                                   ge=-1, le=3)
+    min_image_size: int = opt(960, "smaller photos are upsized (bicubic) to this longest side for extraction",
+                              ge=0)
+    first_octave: int = opt(0, "SIFT first octave: -1 upsamples 2x inside SIFT (COLMAP's default; slow)",
+                            ge=-1, le=3)
     peak_threshold: float = opt(0.0066667, "SIFT peak (contrast) threshold; lower = more features in "
                                            "low-contrast photos", gt=0)
     edge_threshold: float = opt(10.0, "SIFT edge threshold", gt=0)
@@ -43,7 +45,8 @@ class FeaturesConfig:
             raise ConfigError(f"features.type: unknown feature type '{self.type}'; use 'sift'")
 
     def settings(self) -> SiftSettings:
-        return SiftSettings(self.max_image_size, self.max_num_features, self.first_octave, self.peak_threshold,
+        return SiftSettings(self.max_image_size, self.min_image_size, self.max_num_features, self.first_octave,
+                            self.peak_threshold,
                             self.edge_threshold, self.estimate_affine_shape, self.domain_size_pooling,
                             self.upright, self.darkness_adaptivity)
 

@@ -12,23 +12,21 @@ from typing import Literal
 from recon.options import opt
 from recon.sparse import pairs as pairing
 from recon.sparse.database import opened
-from recon.stage import Progress, Stage, StageContext, StageError, register
+from recon.stage import Progress, Stage, StageContext, register
 from recon.workspace import read_json
 
 
 @dataclass(frozen=True)
 class MatchingConfig:
-    method: Literal["auto", "exhaustive", "sequential", "retrieval", "spatial"] = opt(
+    method: Literal["auto", "exhaustive", "sequential", "retrieval"] = opt(
         "auto", "pair selection; auto = sequential for video frames, else exhaustive up to `exhaustive_max` "
                 "photos, else retrieval")
-    exhaustive_max: int = opt(60, "auto: largest photo count matched exhaustively", ge=2)
+    exhaustive_max: int = opt(40, "auto: largest photo count matched exhaustively", ge=2)
     overlap: int = opt(10, "sequential: match each frame with this many following frames", ge=1)
     loop_detection: bool = opt(True, "sequential: also match frames that look alike (loop closure)")
     loop_neighbors: int = opt(5, "sequential: loop-closure candidates per frame", ge=0)
-    neighbors: int = opt(25, "retrieval: most similar photos matched with each photo", ge=1)
+    neighbors: int = opt(15, "retrieval: most similar photos matched with each photo", ge=1)
     vocabulary_words: int = opt(64, "retrieval: words of the VLAD vocabulary learned from the photos", ge=8)
-    spatial_neighbors: int = opt(20, "spatial: nearest photos by GPS position matched with each", ge=1)
-    spatial_max_distance: float = opt(200.0, "spatial: largest GPS distance of a pair, metres", gt=0)
     max_ratio: float = opt(0.8, "Lowe's ratio test threshold", gt=0, le=1)
     max_distance: float = opt(0.7, "largest descriptor distance of a match", gt=0, le=1)
     cross_check: bool = opt(True, "keep only mutual best matches")
@@ -67,8 +65,6 @@ def choose_pairs(cfg: MatchingConfig, database: Path, names: list[str], seed: in
         method = "sequential" if ordered else "exhaustive" if n <= cfg.exhaustive_max else "retrieval"
     if method == "exhaustive":
         return method, pairing.exhaustive_pairs(n)
-    if method == "spatial":
-        return method, []  # COLMAP pairs by the pose priors in the database
     similarity = _similarity(database, names, cfg.vocabulary_words, seed)
     if method == "retrieval":
         return method, pairing.retrieval_pairs(similarity, cfg.neighbors)
@@ -98,7 +94,6 @@ class Matching(Stage):
     summary = "pair selection, SIFT matching and geometric verification into database.db"
 
     def run(self, ctx: StageContext, cfg: MatchingConfig) -> dict:
-        import pycolmap
 
         database = ctx.out / "database.db"
         if database.exists():  # an interrupted run's database: COLMAP skips the pairs already in it
@@ -113,16 +108,7 @@ class Matching(Stage):
         listing = read_json(ctx.input("features") / "images.json") or {}
         method, pairs = choose_pairs(cfg, database, names, ctx.seed, bool(listing.get("ordered")))
         mo, vo = _options(cfg, ctx.seed)
-        if method == "spatial":
-            with opened(database) as db:
-                if db.num_pose_priors() == 0:
-                    raise StageError("matching.method: 'spatial' needs GPS positions in the photos' EXIF; "
-                                     "none of these photos has one. Use 'auto' or 'exhaustive'.")
-            so = pycolmap.SpatialPairingOptions()
-            so.max_num_neighbors, so.max_distance = cfg.spatial_neighbors, cfg.spatial_max_distance
-            pycolmap.match_spatial(str(database), mo, so, vo, device=pycolmap.Device.cpu)
-        else:
-            _match_pairs(ctx, database, [(names[i], names[j]) for i, j in pairs], mo, vo, cfg.chunk_pairs)
+        _match_pairs(ctx, database, [(names[i], names[j]) for i, j in pairs], mo, vo, cfg.chunk_pairs)
         with opened(database) as db:
             matched = db.num_matched_image_pairs()
         verified = sum(1 for v in _inlier_counts(database) if v >= cfg.min_inliers)

@@ -30,6 +30,8 @@ class SfmConfig:
     ba_local_images: int = opt(6, "photos in each local bundle adjustment", ge=2)
     ba_max_iterations: int = opt(50, "iterations of each global bundle adjustment (COLMAP: 100)", ge=1)
     final_ba_iterations: int = opt(100, "iterations of a last global BA over the finished model (0 = off)", ge=0)
+    deterministic: bool = opt(False, "single-threaded mapping and bundle adjustment: bit-identical re-runs "
+                                     "(multi-threaded runs agree to ~1e-3 of the camera spread), slower")
 
 
 @register

@@ -11,6 +11,7 @@ import trimesh
 from scipy.sparse.csgraph import connected_components
 
 from recon._open3d import open3d
+from recon.surface.indexing import unique_rows
 from recon.surface.options import MeshOptions
 
 log = logging.getLogger(__name__)
@@ -29,7 +30,7 @@ def remove_degenerate_faces(mesh: trimesh.Trimesh, rel_area: float = 1e-12) -> t
     f = np.asarray(mesh.faces)
     repeated = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
     tiny = mesh.area_faces <= rel_area * max(mesh.scale, 1e-30) ** 2
-    _, first = np.unique(np.sort(f, axis=1), axis=0, return_index=True)
+    _, first = unique_rows(np.sort(f, axis=1), return_index=True)
     unique = np.zeros(len(f), bool)
     unique[first] = True
     keep = ~repeated & ~tiny & unique
@@ -43,7 +44,7 @@ def remove_non_manifold_edges(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     f = np.asarray(mesh.faces)
     edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
     face_of = np.tile(np.arange(len(f)), 3)
-    _, edge_id, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    _, edge_id, counts = unique_rows(edges, return_inverse=True, return_counts=True)
     edge_id = edge_id.ravel()
     bad = counts[edge_id] > 2
     keep = np.ones(len(f), bool)
@@ -77,7 +78,7 @@ def split_non_manifold_vertices(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     graph = sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(3 * n_f, 3 * n_f))
     _, fan = connected_components(graph, directed=False)
     # the first fan of each vertex keeps it, every further fan gets a copy
-    pairs, corner_pair = np.unique(np.stack([corner_v, fan], axis=1), axis=0, return_inverse=True)
+    pairs, corner_pair = unique_rows(np.stack([corner_v, fan], axis=1), return_inverse=True)
     first = np.ones(len(pairs), bool)
     first[1:] = pairs[1:, 0] != pairs[:-1, 0]
     if first.all():

@@ -13,6 +13,7 @@ import trimesh
 
 from recon._open3d import open3d
 from recon.geometry.transforms import backproject
+from recon.surface.indexing import unique_rows
 from recon.surface.options import MeshOptions
 
 log = logging.getLogger(__name__)
@@ -44,7 +45,8 @@ def tsdf_mesh(depths: Sequence[np.ndarray], images: Sequence[np.ndarray] | None,
     depth_max = options.depth_max_fraction * extent if options.depth_max_fraction > 0 else 1e9
     # the block hash map does not grow on every device: size it from the blocks the points touch
     block = voxel * _BLOCK_RESOLUTION
-    touched = len(np.unique(np.floor(pts / block).astype(np.int64), axis=0))
+    cells = np.floor(pts / block).astype(np.int64)
+    touched = len(unique_rows(cells - cells.min(axis=0)))
     names, dtypes, channels = ["tsdf", "weight"], [core.float32, core.float32], [1, 1]
     if images is not None:
         names, dtypes, channels = names + ["color"], dtypes + [core.float32], channels + [3]

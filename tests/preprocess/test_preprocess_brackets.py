@@ -9,12 +9,13 @@ import pytest
 from PIL import Image
 
 import recon
-from recon.sparse.features import SiftSettings, extract_sift
+from recon.sparse.features import extract_sift
+from recon.stages.features import FeaturesConfig
 from recon.workspace import read_json
 
 TIMES = (1.0, 16.0, 256.0)  # 4 stops apart
 VIEWS = 5
-SIFT = SiftSettings(1600, 8192, None, 0.0066667, 10.0, False, False, False, False)  # features' defaults
+SIFT = FeaturesConfig().settings()  # features' defaults
 
 
 def output(ws: Path, stage: str) -> Path:

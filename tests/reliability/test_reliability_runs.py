@@ -47,11 +47,12 @@ def manifest_times(ws: Path) -> dict[str, list[float]]:
     return {s: [read_json(p / "manifest.json")["finished"] for p in complete_outputs(ws, s)] for s in SPARSE_STAGES}
 
 
-@pytest.mark.parametrize("signal_name", ["SIGINT", "SIGKILL"])
+@pytest.mark.parametrize("signal_name", ["SIGINT", pytest.param("SIGKILL", marks=pytest.mark.slow)])
 def test_stop_in_every_stage_then_rerun_gives_the_same_model(signal_name, small_scene, sparse_workspace, tmp_path):
     """One workspace, stopped once inside each stage in turn; each run resumes the stage the one
     before stopped in, keeps every finished stage and item, and the last run completes with the
-    same files as an uninterrupted run."""
+    same model as an uninterrupted run. (Quick SIGKILL variants: below for sfm and export,
+    tests/spine/test_resume.py for features and matching.)"""
     ws = tmp_path / "ws"
     args = run_args(small_scene, ws)
     finished: dict[str, list[float]] = {}
@@ -82,6 +83,26 @@ def test_stop_in_every_stage_then_rerun_gives_the_same_model(signal_name, small_
     assert last.stdout.startswith("recon: ran export;")
     now = manifest_times(ws)
     assert {s: now[s] for s in finished} == finished
+    assert all(partial_outputs(ws, s) == [] for s in SPARSE_STAGES)
+    assert_same_reconstruction(ws, sparse_workspace)
+
+
+@pytest.mark.parametrize("stage", ["sfm", "export"])
+def test_sigkill_in_a_late_stage_then_rerun_gives_the_same_model(stage, copy_workspace, sparse_workspace, small_scene):
+    ws = copy_workspace
+    later = SPARSE_STAGES[SPARSE_STAGES.index(stage):]
+    for name in later:
+        shutil.rmtree(cache_dir(ws, name))
+    before = manifest_times(ws)
+    args = run_args(small_scene, ws)
+    killed = interrupted_run(stage, "SIGKILL", args)
+    assert killed.returncode == -9, killed.stderr[-3000:]
+    assert complete_outputs(ws, stage) == [] and len(partial_outputs(ws, stage)) == 1
+    again = cli(*args)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert again.stdout.startswith(f"recon: ran {', '.join(later)};")
+    now = manifest_times(ws)
+    assert {s: now[s] for s in SPARSE_STAGES if s not in later} == {s: before[s] for s in SPARSE_STAGES if s not in later}
     assert all(partial_outputs(ws, s) == [] for s in SPARSE_STAGES)
     assert_same_reconstruction(ws, sparse_workspace)
 

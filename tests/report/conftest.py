@@ -25,7 +25,7 @@ import pytest
 import recon
 
 REPO = Path(__file__).resolve().parents[2]
-SPARSE = REPO / "pipelines" / "sparse.yaml"
+SPARSE = REPO / "tests" / "sparse_test.yaml"  # the session sparse run's config: its stages stay cached
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
                   # WebGL on the CPU (SwiftShader): the viewer needs it and the machine has no GPU

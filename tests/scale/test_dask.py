@@ -14,7 +14,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_dask_local_cluster_gives_the_same_sparse_model(small_scene, sparse_workspace, tmp_path):
     ws = tmp_path / "ws"
-    result = recon.run(REPO / "pipelines" / "sparse.yaml", images=str(small_scene / "images"), workspace=str(ws),
+    result = recon.run(REPO / "tests" / "sparse_test.yaml", images=str(small_scene / "images"), workspace=str(ws),
                        executor="dask-local:2")
     assert result.ran == ["ingest", "calibrate", "preprocess", "features", "matching", "sfm", "export"]
     a = pycolmap.Reconstruction(str(ws / "sparse" / "0"))

@@ -13,7 +13,7 @@ import recon
 from recon.workspace import read_json
 
 REPO = Path(__file__).resolve().parents[2]
-SPARSE = REPO / "pipelines" / "sparse.yaml"
+SPARSE = REPO / "tests" / "sparse_test.yaml"
 
 
 def stage_runs(ws: Path) -> dict[str, int]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import signal
 import sqlite3
 import subprocess
@@ -14,7 +15,7 @@ import pycolmap
 import pytest
 
 REPO = Path(__file__).resolve().parents[2]
-SPARSE = REPO / "pipelines" / "sparse.yaml"
+SPARSE = REPO / "tests" / "sparse_test.yaml"
 
 
 def start_run(scene: Path, ws: Path, *overrides: str) -> subprocess.Popen:
@@ -83,4 +84,7 @@ def test_sigkill_then_rerun_gives_the_same_model(stage, small_scene, sparse_work
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
     assert "already done, resuming" in done.stderr
+    # COLMAP's own log lines (glog format) go to the workspace's log files, not the terminal
+    assert not re.search(r"^[IWE]\d{8} ", done.stderr, re.MULTILINE), done.stderr[:500]
+    assert list(ws.glob(".recon/logs/*"))
     assert_same_model(ws, sparse_workspace)

@@ -20,6 +20,7 @@ import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
 from recon.geometry.transforms import project
+from recon.surface.indexing import unique_rows
 from recon.surface.texture.raster import sample_bilinear
 from recon.surface.texture.views import unobstructed
 
@@ -35,7 +36,7 @@ def patch_vertices(faces: np.ndarray, patch: np.ndarray, labels: np.ndarray) -> 
     corner = np.full(faces.shape, -1, np.int64)
     seen = labels >= 0
     keys = np.stack([np.repeat(patch[seen], 3), faces[seen].ravel()], axis=1)
-    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+    uniq, inv = unique_rows(keys, return_inverse=True)
     corner[seen] = inv.reshape(-1, 3)
     return corner, len(uniq)
 
@@ -98,12 +99,12 @@ def level_seams(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, pat
     if len(rows) == 0:
         return corr
     f = f_sum / np.maximum(f_w, 1e-12)[:, None]
-    seam_pairs = np.unique(rows, axis=0)
+    seam_pairs = unique_rows(rows)
     # regulariser: patch-vertex pairs joined by an edge of a face of that patch
     seen = labels >= 0
     c = corner_pv[seen]
     reg = np.sort(np.concatenate([c[:, [0, 1]], c[:, [1, 2]], c[:, [2, 0]]]), axis=1)
-    reg = np.unique(reg, axis=0)
+    reg = unique_rows(reg)
 
     def difference(p):
         m = len(p)

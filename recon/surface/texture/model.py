@@ -8,6 +8,8 @@ import numpy as np
 import trimesh
 from PIL import Image
 
+from recon.surface.indexing import unique_rows
+
 
 @dataclass(frozen=True)
 class TexturedMesh:
@@ -29,8 +31,8 @@ class TexturedMesh:
         """A trimesh with per-vertex UVs: vertices are split where faces give them different UVs."""
         corner_v = self.faces.reshape(-1)
         corner_uv = self.uv.reshape(-1, 2)
-        key = np.concatenate([corner_v[:, None].astype(np.float64), np.round(corner_uv * 2**24)], axis=1)
-        _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+        key = np.concatenate([corner_v[:, None], np.round(np.clip(corner_uv, 0, 1) * 2**20).astype(np.int64)], axis=1)
+        _, first, inverse = unique_rows(key, return_index=True, return_inverse=True)
         material = trimesh.visual.material.PBRMaterial(
             baseColorTexture=Image.fromarray(self.texture), metallicFactor=0.0, roughnessFactor=1.0)
         visual = trimesh.visual.TextureVisuals(uv=corner_uv[first], material=material)

@@ -1,0 +1,102 @@
+"""mesh: a surface from the dense reconstruction (screened Poisson on fused points, or TSDF + marching
+cubes on the depth maps), cleaned and decimated; written as a vertex-coloured mesh.ply."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from recon.options import opt
+from recon.stage import Stage, StageContext, StageError, register
+from recon.surface.options import MeshOptions
+
+
+@dataclass(frozen=True)
+class MeshConfig(MeshOptions):
+    tsdf_max_views: int = opt(0, "tsdf: integrate at most this many depth maps, evenly spread (0 = all)", ge=0)
+
+
+def dense_views(dense: Path) -> list:
+    """Pinhole cameras (name, K, R, t, size) of the undistorted model, sorted by image name."""
+    import pycolmap
+
+    from recon.mvs.views import view_camera
+
+    rec = pycolmap.Reconstruction(str(dense / "sparse"))
+    views = [view_camera(img, rec.camera(img.camera_id)) for img in rec.images.values() if img.has_pose]
+    return sorted(views, key=lambda v: v.name)
+
+
+def scaled_to(view, width: int, height: int):
+    """The camera of a view for an image of ``width`` x ``height`` (depth maps are computed smaller)."""
+    sx, sy = width / view.width, height / view.height
+    K = np.diag([sx, sy, 1.0]) @ view.K
+    return replace(view, K=K, width=width, height=height)
+
+
+@register
+class Mesh(Stage):
+    name = "mesh"
+    version = 1
+    Config = MeshConfig
+    requires = ("undistort", "mvs", "fusion")
+    outputs = ("mesh.ply",)
+    publish = {"mesh.ply": "mesh.ply"}
+    summary = "Poisson (default) or TSDF surface, trimmed, cleaned, decimated: mesh.ply"
+
+    def run(self, ctx: StageContext, cfg: MeshConfig) -> dict:
+        from recon.surface.cleanup import clean_mesh
+
+        if cfg.method == "poisson":
+            mesh = self._poisson(ctx, cfg)
+        else:
+            mesh = self._tsdf(ctx, cfg)
+        mesh = clean_mesh(mesh, cfg)
+        if len(mesh.faces) == 0:
+            raise StageError(f"mesh: the {cfg.method} surface is empty after trimming; lower "
+                             "mesh.density_quantile or check dense/fused.ply")
+        tmp = ctx.out / ".mesh.ply"
+        tmp.write_bytes(mesh.export(file_type="ply"))
+        tmp.replace(ctx.out / "mesh.ply")
+        return {"method": cfg.method, "vertices": len(mesh.vertices), "faces": len(mesh.faces),
+                "watertight": bool(mesh.is_watertight)}
+
+    def _poisson(self, ctx: StageContext, cfg: MeshConfig):
+        from recon._open3d import open3d
+        from recon.surface.poisson import poisson_mesh
+
+        cloud = open3d().io.read_point_cloud(str(ctx.input("fusion") / "fused.ply"))
+        points = np.asarray(cloud.points)
+        if len(points) < 100 or not cloud.has_normals():
+            raise StageError("mesh: dense/fused.ply has too few oriented points for Poisson meshing; "
+                             "check the fusion stage, or use mesh.method: tsdf")
+        colors = (np.asarray(cloud.colors) * 255).round().astype(np.uint8) if cloud.has_colors() else None
+        return poisson_mesh(points, np.asarray(cloud.normals), colors, cfg)
+
+    def _tsdf(self, ctx: StageContext, cfg: MeshConfig):
+        import cv2
+
+        from recon.mvs.colmap_io import read_depth_map
+        from recon.surface.tsdf import tsdf_mesh
+
+        dense = ctx.input("undistort") / "dense"
+        stereo = ctx.input("mvs") / "stereo"
+        views = dense_views(dense)
+        if cfg.tsdf_max_views and len(views) > cfg.tsdf_max_views:
+            views = [views[i] for i in np.linspace(0, len(views) - 1, cfg.tsdf_max_views).round().astype(int)]
+        depths, images, cameras = [], [], []
+        for view in views:
+            path = stereo / "depth_maps" / f"{view.name}.geometric.bin"
+            if not path.exists():
+                continue
+            depth = read_depth_map(path)
+            image = cv2.cvtColor(cv2.imread(str(dense / "images" / view.name)), cv2.COLOR_BGR2RGB)
+            image = cv2.resize(image, (depth.shape[1], depth.shape[0]), interpolation=cv2.INTER_AREA)
+            depths.append(depth)
+            images.append(image)
+            cameras.append(scaled_to(view, depth.shape[1], depth.shape[0]))
+        if not depths:
+            raise StageError("mesh: no geometric depth maps found for TSDF meshing; run the mvs stage")
+        return tsdf_mesh(depths, images, cameras, cfg)

@@ -1,0 +1,154 @@
+"""The PatchMatch kernels on an exactly known scene: a textured slanted plane seen by a few cameras."""
+
+import dataclasses
+
+import cv2
+import numba
+import numpy as np
+import pytest
+
+from recon.mvs import patchmatch as pm
+from recon.mvs.options import MVSOptions
+
+WIDTH, HEIGHT = 96, 72
+OPTIONS = MVSOptions(iterations=4)
+CENTRES = [(0.0, 0.0, 0.0), (0.3, 0.0, 0.0), (-0.3, 0.05, 0.0), (0.0, 0.25, 0.05)]
+
+
+def _plane_scene(tilt_deg: float = 25.0, depth: float = 2.0, seed: int = 0):
+    """Images (float32 [0, 1]), cameras and true depth maps of views of the plane through (0, 0, depth)
+    whose normal is tilted by ``tilt_deg`` about the y axis; view 0 is the reference."""
+    rng = np.random.default_rng(seed)
+    texture = cv2.resize(rng.random((48, 48)).astype(np.float32), (480, 480), interpolation=cv2.INTER_CUBIC)
+    t = np.radians(tilt_deg)
+    normal = np.array([np.sin(t), 0.0, -np.cos(t)])
+    e1 = np.array([np.cos(t), 0.0, np.sin(t)])
+    e2 = np.cross(normal, e1)
+    origin = np.array([0.0, 0.0, depth])
+    f = 1.2 * WIDTH
+    K = np.array([[f, 0, WIDTH / 2], [0, f, HEIGHT / 2], [0, 0, 1]])
+    u, v = np.meshgrid(np.arange(WIDTH) + 0.5, np.arange(HEIGHT) + 0.5)
+    rays = np.stack([u, v, np.ones_like(u)], -1) @ np.linalg.inv(K).T
+    images, cams, depths = [], [], []
+    for centre in CENTRES:
+        centre = np.asarray(centre)
+        s = (normal @ (origin - centre)) / (rays @ normal)
+        X = centre + s[..., None] * rays  # R = I, so camera rays are world rays
+        a, b = (X - origin) @ e1, (X - origin) @ e2
+        map_x = ((a + 1.0) * 240).astype(np.float32)
+        map_y = ((b + 1.0) * 240).astype(np.float32)
+        images.append(cv2.remap(texture, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT))
+        cams.append(pm.Camera(K, np.eye(3), -centre))
+        depths.append((X[..., 2] - centre[2]).astype(np.float32))
+    normal_cam = np.broadcast_to(normal.astype(np.float32), (HEIGHT, WIDTH, 3)).copy()
+    return images, cams, depths, normal_cam
+
+
+@pytest.fixture(scope="module")
+def plane():
+    return _plane_scene()
+
+
+def _state(depth, normal):
+    every_source = (1 << (len(CENTRES) - 1)) - 1
+    return pm.State(depth.copy(), normal.copy(), np.zeros_like(depth), np.full(depth.shape, every_source, np.int64))
+
+
+def test_window_grid_is_symmetric():
+    start, step, count = pm.window_grid(5, 2)
+    ticks = start + step * np.arange(count)
+    np.testing.assert_array_equal(ticks, [-5, -3, -1, 1, 3, 5])
+    start, step, count = pm.window_grid(3, 1)
+    assert (start, step, count) == (-3, 1, 7)
+
+
+def test_propagation_regions_read_the_other_colour():
+    for region, count in zip(pm.REGION_OFFSETS, pm.REGION_COUNTS):
+        dx, dy = region[:count, 0], region[:count, 1]
+        assert np.all((dx + dy) % 2 == 1)
+    assert len({tuple(r[0]) for r in pm.REGION_OFFSETS}) == 8
+
+
+def test_pyramid_levels_keep_the_coarsest_level_large_enough():
+    options = MVSOptions(pyramid_levels=4, pyramid_min_size=160)
+    assert pm.pyramid_levels((1024, 1536), options) == 4
+    assert pm.pyramid_levels((480, 640), options) == 3
+    assert pm.pyramid_levels((72, 96), options) == 1
+
+
+def test_cost_is_lowest_at_the_true_plane(plane):
+    images, cams, depths, normal = plane
+    level = pm.make_level(images[0], images[1:], cams[0], cams[1:])
+    inner = (slice(8, -8), slice(8, -8))
+    costs = {}
+    for scale in (1.0, 0.97, 1.03):
+        state = _state(depths[0] * scale, normal)
+        pm.evaluate_state(level, state, OPTIONS, pm.ALL_VIEWS)
+        costs[scale] = float(np.median(state.cost[inner]))
+    assert costs[1.0] < 0.05
+    assert costs[0.97] > costs[1.0] + 0.1 and costs[1.03] > costs[1.0] + 0.1
+
+
+def test_photometric_depth_recovers_a_slanted_plane(plane):
+    images, cams, depths, normal = plane
+    state = pm.photometric_depth(images[0], images[1:], cams[0], cams[1:], (1.0, 4.0), OPTIONS, seed=3)
+    inner = (slice(6, -6), slice(6, -6))
+    error = np.abs(state.depth - depths[0])[inner] / depths[0][inner]
+    assert (error < 0.01).mean() > 0.9
+    cos = np.sum(state.normal[inner] * normal[inner], axis=-1)
+    assert np.median(np.degrees(np.arccos(np.clip(cos, -1, 1)))) < 5.0
+
+
+def test_results_do_not_depend_on_threads(plane):
+    images, cams, _, _ = plane
+    options = dataclasses.replace(OPTIONS, iterations=2)
+    threads = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = pm.photometric_depth(images[0], images[1:], cams[0], cams[1:], (1.0, 4.0), options, seed=7)
+        numba.set_num_threads(max(2, threads))
+        two = pm.photometric_depth(images[0], images[1:], cams[0], cams[1:], (1.0, 4.0), options, seed=7)
+    finally:
+        numba.set_num_threads(threads)
+    np.testing.assert_array_equal(one.depth, two.depth)
+    np.testing.assert_array_equal(one.normal, two.normal)
+    other = pm.photometric_depth(images[0], images[1:], cams[0], cams[1:], (1.0, 4.0), options, seed=8)
+    assert not np.array_equal(one.depth, other.depth)
+
+
+def test_consistent_views_counts_agreeing_sources(plane):
+    images, cams, depths, _ = plane
+    level = pm.make_level(images[0], images[1:], cams[0], cams[1:])
+    g = level.geometry
+    src_depth, dims = pm.stack_images(depths[1:])
+    count = pm.consistent_views(depths[0], g.kinv, g.A, g.b, src_depth, dims, g.M, g.c, 1.0, 0.01)
+    assert count.max() == 3 and (count[25:-25, 25:-25] == 3).all()
+    wrong, _ = pm.stack_images([d * 1.05 for d in depths[1:]])
+    assert pm.consistent_views(depths[0], g.kinv, g.A, g.b, wrong, dims, g.M, g.c, 1.0, 0.01).max() == 0
+
+
+def test_geometric_term_penalises_disagreeing_depth_maps(plane):
+    images, cams, depths, normal = plane
+    level = pm.make_level(images[0], images[1:], cams[0], cams[1:])
+    inner = (slice(25, -25), slice(25, -25))
+    results = []
+    for scale in (1.0, 1.1):
+        src_depth, _ = pm.stack_images([d * scale for d in depths[1:]])
+        state = _state(depths[0], normal)
+        pm.evaluate_state(level, state, OPTIONS, pm.ALL_VIEWS, src_depth)
+        results.append(float(np.median(state.cost[inner])))
+    photometric = _state(depths[0], normal)
+    pm.evaluate_state(level, photometric, OPTIONS, pm.ALL_VIEWS)
+    assert results[0] == pytest.approx(float(np.median(photometric.cost[inner])), abs=0.02)
+    assert results[1] > results[0] + OPTIONS.geometric_weight  # errors of several pixels, capped at 3
+
+
+def test_filter_keeps_confirmed_pixels_only(plane):
+    images, cams, depths, normal = plane
+    state = _state(depths[0], normal)
+    kept = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], state, OPTIONS)
+    assert (kept.depth[25:-25, 25:-25] > 0).all()
+    assert ((kept.depth == 0) == (kept.normal == 0).all(axis=-1)).all()
+    wrong = _state(depths[0] * 1.05, normal)
+    dropped = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], wrong, OPTIONS)
+    assert not dropped.depth.any()

@@ -1,0 +1,55 @@
+import numpy as np
+import pycolmap
+import pytest
+
+from recon.mvs.options import MVSOptions
+from recon.mvs.views import angle_weight, select_problems
+from recon.synth import load_scene
+
+
+@pytest.fixture(scope="module")
+def reconstruction(small_scene):
+    return pycolmap.Reconstruction(small_scene / "dense" / "sparse")
+
+
+def test_every_view_gets_sources_and_a_depth_range_holding_its_surface(small_scene, reconstruction):
+    scene = load_scene(small_scene / "scene")
+    problems = select_problems(reconstruction, MVSOptions(max_sources=3))
+    assert sorted(p.ref for p in problems) == sorted(scene.image_names)
+    for problem in problems:
+        assert 1 <= len(problem.sources) <= 3 and problem.ref not in problem.sources
+        assert set(problem.cameras) == {problem.ref, *problem.sources}
+        truth = scene.depth(problem.ref)
+        low, high = np.percentile(truth[truth > 0], [1, 99])
+        assert problem.depth_min <= low and high <= problem.depth_max
+        assert problem.depth_max < 4 * high  # a margin, not an unbounded range
+
+
+def test_sources_are_the_neighbours_on_the_path(reconstruction):
+    # views move along a line: the best sources of view i are views i - 1 and i + 1
+    problems = {p.ref: p for p in select_problems(reconstruction, MVSOptions(max_sources=2))}
+    names = sorted(problems)
+    for i in range(1, len(names) - 1):
+        assert set(problems[names[i]].sources) == {names[i - 1], names[i + 1]}
+
+
+def test_a_large_minimum_angle_drops_the_nearest_neighbours(reconstruction):
+    problems = {p.ref: p for p in select_problems(reconstruction, MVSOptions(min_triangulation_angle=25.0))}
+    assert {"view_001.jpg", "view_003.jpg"}.isdisjoint(problems["view_002.jpg"].sources)
+    assert select_problems(reconstruction, MVSOptions(min_triangulation_angle=89.0)) == []
+
+
+def test_angle_weight_peaks_at_five_degrees():
+    w = angle_weight(np.array([1.0, 3.0, 5.0, 10.0, 30.0]))
+    assert w[2] == pytest.approx(1.0)
+    assert w[0] < w[1] < w[2] and w[2] > w[3] > w[4]
+    assert w[1] < w[3]  # small angles are penalised faster than large ones
+
+
+def test_distorted_cameras_are_refused(reconstruction):
+    rec = pycolmap.Reconstruction(reconstruction)
+    camera = next(iter(rec.cameras.values()))
+    camera.model = pycolmap.CameraModelId.SIMPLE_RADIAL
+    camera.params = [camera.focal_length_x, camera.principal_point_x, camera.principal_point_y, 0.01]
+    with pytest.raises(ValueError, match="pinhole"):
+        select_problems(rec)
