@@ -104,32 +104,58 @@ def last_log_file() -> Path | None:
 # Evaluation, synthetic scenes, demo
 
 
-def evaluate(workspace: str | Path, gt: str | Path) -> dict:
-    """Figures of a workspace against ground truth: poses of ``sparse/0`` against the ground-truth
-    cameras; on a synthetic scene also accuracy/completeness of the fused cloud and the mesh, after
-    aligning the model to the ground truth by a robust similarity on the camera centres."""
+def _estimated_poses(ws: Path, gt_cams: dict) -> dict:
+    """World-to-camera (R, t) of ``<ws>/sparse/0``'s registered images, keyed by their ground-truth names."""
     import pycolmap
 
-    from recon.eval.groundtruth import load_cameras
-    from recon.eval.poses import pose_metrics
-
-    ws = Path(workspace)
     model = ws / "sparse" / "0"
     if not (model / "images.bin").exists() and not (model / "images.txt").exists():
         raise WorkspaceError(f"{ws}: no sparse model at sparse/0; run the pipeline first")
-    try:
-        gt_cams = load_cameras(Path(gt))
-    except (FileNotFoundError, ValueError) as exc:
-        raise ConfigError(f"--gt {gt}: {exc}") from None
     rec = pycolmap.Reconstruction(str(model))
     by_base = {Path(n).name: n for n in gt_cams}
     est = {}
     for image in rec.images.values():
-        if image.has_pose:
-            key = by_base.get(Path(image.name).name)
-            if key is not None:
-                pose = image.cam_from_world()
-                est[key] = (pose.rotation.matrix(), pose.translation)
+        key = by_base.get(Path(image.name).name)
+        if image.has_pose and key is not None:
+            pose = image.cam_from_world()
+            est[key] = (pose.rotation.matrix(), pose.translation)
+    return est
+
+
+def _load_gt(gt: str | Path) -> dict:
+    from recon.eval.groundtruth import load_cameras
+
+    try:
+        return load_cameras(Path(gt))
+    except (FileNotFoundError, ValueError) as exc:
+        raise ConfigError(f"--gt {gt}: {exc}") from None
+
+
+def model_to_ground_truth(workspace: str | Path, gt: str | Path):
+    """The similarity taking the model's world to the ground truth's (robust fit on camera centres)."""
+    import numpy as np
+
+    from recon.geometry.transforms import align_similarity, camera_center
+
+    gt_cams = _load_gt(gt)
+    est = _estimated_poses(Path(workspace), gt_cams)
+    if len(est) < 3:
+        raise ConfigError(f"--gt {gt}: fewer than 3 images of the model have a ground-truth camera")
+    names = sorted(est)
+    src = np.array([camera_center(*est[n]) for n in names])
+    dst = np.array([gt_cams[n].center for n in names])
+    return align_similarity(src, dst, robust=True)[0]
+
+
+def evaluate(workspace: str | Path, gt: str | Path) -> dict:
+    """Figures of a workspace against ground truth: poses of ``sparse/0`` against the ground-truth
+    cameras; on a synthetic scene also accuracy/completeness of the fused cloud and the mesh, after
+    aligning the model to the ground truth by a robust similarity on the camera centres."""
+    from recon.eval.poses import pose_metrics
+
+    ws = Path(workspace)
+    gt_cams = _load_gt(gt)
+    est = _estimated_poses(ws, gt_cams)
     if not est:
         raise ConfigError(f"--gt {gt}: no image of the model has a ground-truth camera there (names differ?)")
     figures: dict = {"poses": pose_metrics(est, gt_cams)}
@@ -137,29 +163,19 @@ def evaluate(workspace: str | Path, gt: str | Path) -> dict:
     surfaces = [(key, ws / rel) for key, rel in (("fused", "dense/fused.ply"), ("mesh", "mesh.ply"))
                 if (ws / rel).exists()]
     if scene_file.exists() and surfaces and len(est) >= 3:
-        figures.update(_surface_figures(est, gt_cams, Path(gt), surfaces))
+        import numpy as np
+        import trimesh
+
+        from recon.eval.surface import surface_metrics
+        from recon.synth import load_scene
+
+        sim = model_to_ground_truth(ws, gt)
+        scene = load_scene(Path(gt))
+        for key, path in surfaces:
+            geometry = trimesh.load(path, process=False)
+            geometry.vertices = sim.apply(np.asarray(geometry.vertices))
+            figures[key] = surface_metrics(geometry, scene)
     return figures
-
-
-def _surface_figures(est: dict, gt_cams: dict, scene_dir: Path, surfaces: list) -> dict:
-    import numpy as np
-    import trimesh
-
-    from recon.eval.surface import surface_metrics
-    from recon.geometry.transforms import align_similarity, camera_center
-    from recon.synth import load_scene
-
-    names = sorted(est)
-    src = np.array([camera_center(*est[n]) for n in names])
-    dst = np.array([gt_cams[n].center for n in names])
-    sim, _ = align_similarity(src, dst, robust=True)
-    scene = load_scene(scene_dir)
-    out = {}
-    for key, path in surfaces:
-        geometry = trimesh.load(path, process=False)
-        geometry.vertices = sim.apply(np.asarray(geometry.vertices))
-        out[key] = surface_metrics(geometry, scene)
-    return out
 
 
 def format_eval(figures: dict) -> str:

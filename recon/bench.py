@@ -98,7 +98,7 @@ def print_sparse(rows: list[dict]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m recon.bench")
-    parser.add_argument("--only", choices=["sparse"], default=None)
+    parser.add_argument("--only", choices=["sparse", "lowlight", "mvs", "dense"], default=None)
     parser.add_argument("--datasets", type=Path, default=recon.datasets_root())
     parser.add_argument("--out", type=Path, default=REPO / "bench_out")
     args = parser.parse_args(argv)
@@ -109,11 +109,68 @@ def main(argv: list[str] | None = None) -> int:
 
     setup_console(-1)
     args.out.mkdir(parents=True, exist_ok=True)
-    print("== sparse: recon vs COLMAP defaults (same run; ratio = recon total / COLMAP total) ==")
-    print_sparse(bench_sparse(args.datasets, args.out / "sparse"))
-    if args.only is None:
+    if args.only in (None, "sparse"):
+        print("== sparse: recon vs COLMAP defaults (same run; ratio = recon total / COLMAP total) ==")
+        print_sparse(bench_sparse(args.datasets, args.out / "sparse"))
+    if args.only in (None, "lowlight"):
         bench_lowlight(args.datasets, args.out / "lowlight")
+    if args.only in (None, "mvs"):
+        from recon.mvs import bench as mvs_bench
+
+        print("\n== mvs: recon's CPU PatchMatch (OpenMVS 2.3 DensifyPointCloud measured on these cores: "
+              "fountain_p11 at 1536x1024 53 s/view, 1.15 GB) ==", flush=True)
+        mvs_bench.main(["--cache", str(args.out / "mvs")])
+    if args.only in (None, "dense"):
+        bench_dense(args.out / "dense")
     return 0
+
+
+#: OpenMVS 2.3 (CPU) on a comparable 24-view synthetic scene, measured on these machines (issues 3 and 4)
+OPENMVS = {"fused@0.002": 0.975, "fused@0.005": 0.994, "mesh@0.002": 0.937, "mesh@0.005": 0.996, "psnr": 27.9}
+
+
+def bench_dense(out: Path) -> None:
+    """Photos to textured mesh on a synthetic scene (24 views, 640x480, 4 held-out views): stage times,
+    accuracy/completeness/F of the fused cloud and the mesh, masked PSNR of the textured and of the
+    vertex-coloured mesh in the held-out views; OpenMVS 2.3's figures beside."""
+    import numpy as np
+    import trimesh
+
+    from recon.eval.texture import masked_psnr, render
+    from recon.synth import load_scene, render_scene
+
+    scene_dir = out / "scene"
+    if not (scene_dir / "gt" / "scene.json").exists():
+        render_scene(scene_dir, views=24, width=640, height=480, seed=0, holdout=4)
+    scene = load_scene(scene_dir)
+    ws = out / "ws"
+    shutil.rmtree(ws, ignore_errors=True)
+    result = recon.run(REPO / "pipelines" / "full.yaml", images=str(scene_dir / "images"), workspace=str(ws))
+    figures = recon.api.evaluate(ws, scene_dir)
+    sim = recon.api.model_to_ground_truth(ws, scene_dir)
+    textured = trimesh.load(ws / "textured.glb", force="mesh")
+    colored = trimesh.load(ws / "mesh.ply", process=False)
+    psnr = {"texture": [], "vertex colours": []}
+    for name, cam in scene.cameras(holdout=True).items():
+        from PIL import Image
+
+        truth = np.asarray(Image.open(scene.root / "holdout" / "images" / name).convert("RGB"))
+        for key, mesh in (("texture", textured), ("vertex colours", colored)):
+            moved = mesh.copy()
+            moved.vertices = sim.apply(np.asarray(mesh.vertices))
+            image, mask = render(moved, cam, cam.width, cam.height)
+            mask &= scene.depth(name) > 0
+            psnr[key].append(masked_psnr(image, truth, mask))
+    times = ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items())
+    print("\n== dense: synthetic scene, 24 views 640x480, photos to textured mesh (poses estimated) ==")
+    print(f"stage seconds: {times}")
+    print(f"{'':<16}{'F@0.2%':>8}{'F@0.5%':>8}{'acc@0.2%':>10}{'comp@0.2%':>11}   OpenMVS 2.3 F@0.2% / F@0.5%")
+    for key in ("fused", "mesh"):
+        m = figures[key]
+        print(f"{key:<16}{m['fscore@0.002'] / 100:>8.3f}{m['fscore@0.005'] / 100:>8.3f}{m['accuracy@0.002']:>10.1f}"
+              f"{m['completeness@0.002']:>11.1f}   {OPENMVS[key + '@0.002']:.3f} / {OPENMVS[key + '@0.005']:.3f}")
+    print(f"held-out PSNR: textured {np.mean(psnr['texture']):.2f} dB, vertex colours "
+          f"{np.mean(psnr['vertex colours']):.2f} dB (OpenMVS 2.3 TextureMesh: {OPENMVS['psnr']} dB)")
 
 
 def bench_lowlight(datasets: Path, out: Path) -> None:

@@ -192,6 +192,7 @@ def run(cfg: RunConfig, *, from_stage: str | None = None, until: str | None = No
                     raise ConfigError(f"--from {from_stage}: stage '{name}' before it has no complete "
                                       "output for this config; run without --from first")
                 try:
+                    _unpublish_downstream(ws, name)
                     outputs[name] = _run_stage(cfg, ws, name, key, p.material[name], outputs, executor, result)
                 except (ConfigError, StageError):
                     raise
@@ -262,6 +263,20 @@ def _out_of_space(ws: Workspace, exc: BaseException) -> bool:
         return shutil.disk_usage(ws.root).free < NEAR_FULL
     except OSError:
         return False
+
+
+def _unpublish_downstream(ws: Workspace, name: str) -> None:
+    """Remove the workspace links of every stage that reads (directly or not) from ``name``: about to
+    change, ``name`` would leave them showing outputs made from its old output. They come back when
+    those stages run, or are found cached, for the new one."""
+    affected = {name}
+    for stage_name, stage in REGISTRY.items():
+        if affected & {*stage.requires, *stage.optional}:
+            affected.add(stage_name)
+            for link in stage.publish.values():
+                path = ws.root / link
+                if stage_name != name and path.is_symlink():
+                    path.unlink()
 
 
 def _publish(ws: Workspace, name: str, out: Path) -> None:

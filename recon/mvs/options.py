@@ -30,7 +30,7 @@ class MVSOptions:
     view_subset: bool = opt(True, "above the coarsest level, match each pixel only against the top_k views best for its upsampled plane")
     perturbation: float = opt(0.1, "initial refinement range: relative depth change and normal change (rad/pi); halves every sweep", gt=0.0, le=1.0)
     geometric: bool = opt(True, "run the geometric-consistency pass (photometric + reprojection cost) before filtering")
-    geometric_iterations: int = opt(2, "sweeps of the geometric-consistency pass", ge=0, le=50)
+    geometric_iterations: int = opt(1, "sweeps of the geometric-consistency pass", ge=0, le=50)
     geometric_weight: float = opt(0.2, "weight of the reprojection error (px) in the geometric-consistency cost", ge=0.0)
     geometric_max_error: float = opt(3.0, "reprojection errors are capped at this value (px) inside the cost", gt=0.0)
     filter_max_cost: float = opt(0.6, "filtering: largest matching cost (1 - NCC, mean of the K best views) kept", gt=0.0, le=2.0)

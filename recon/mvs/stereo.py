@@ -10,6 +10,10 @@ PINHOLE cameras, ``stereo/``). Maps are written in COLMAP's layout under ``out_d
 at the working resolution (longest side at most ``max_image_size``), which ``pycolmap.stereo_fusion``
 reads with the full-size images. Each file is written atomically and the depth map last, so a depth
 map on disk means the view is complete. Filtered pixels have depth 0 and normal (0, 0, 0).
+
+Depth at pixel (col, row) is along the ray through (col + 0.5, row + 0.5), recon's and COLMAP's
+sparse convention; COLMAP's fusion back-projects it through (col, row), which moves fused points by
+half a working-resolution pixel sideways (well below its 2 px consistency tolerance).
 """
 
 from __future__ import annotations
@@ -64,7 +68,8 @@ def _seed(options: MVSOptions, name: str) -> int:
 
 
 def _use_threads(options: MVSOptions) -> None:
-    numba.set_num_threads(options.num_threads or numba.config.NUMBA_NUM_THREADS)
+    available = numba.config.NUMBA_NUM_THREADS
+    numba.set_num_threads(min(options.num_threads, available) if options.num_threads else available)
 
 
 def photometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,

@@ -1,4 +1,8 @@
-"""undistort: COLMAP's undistorted workspace (pinhole images, model, stereo configs) for dense work."""
+"""undistort: COLMAP's undistorted workspace (pinhole images, model, stereo configs) for dense work.
+
+It reads preprocess's ``images_geometric``: the photos with only the geometric operations applied
+(resize, undistortion), so their pixels match the model's cameras and keep their original colours.
+"""
 
 from __future__ import annotations
 
@@ -20,7 +24,7 @@ class Undistort(Stage):
     name = "undistort"
     version = 1
     Config = UndistortConfig
-    requires = ("ingest", "sfm")
+    requires = ("preprocess", "sfm")
     outputs = ("dense/images/", "dense/sparse/", "dense/stereo/{patch-match,fusion}.cfg")
     publish = {"dense/images": "dense/images", "dense/sparse": "dense/sparse"}
     summary = "undistorted pinhole images and model in COLMAP's dense workspace layout"
@@ -34,7 +38,7 @@ class Undistort(Stage):
             opts.max_image_size = cfg.max_image_size
         dense = ctx.out / "dense"
         pycolmap.undistort_images(str(dense), str(ctx.input("sfm") / "sparse" / "0"),
-                                  str(ctx.input("ingest") / "images"), undistort_options=opts)
+                                  str(ctx.input("preprocess") / "images_geometric"), undistort_options=opts)
         rec = pycolmap.Reconstruction(str(dense / "sparse"))
         cam = next(iter(rec.cameras.values()))
         return {"images": rec.num_reg_images(), "size": f"{cam.width}x{cam.height}"}

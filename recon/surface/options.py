@@ -13,18 +13,18 @@ class MeshOptions:
     """How a surface is built from fused points (Poisson) or depth maps (TSDF), then cleaned."""
 
     method: Literal["poisson", "tsdf"] = opt("poisson", "poisson: screened Poisson on oriented fused points; tsdf: fuse depth maps")
-    depth: int = opt(10, "Poisson octree depth (resolution = points' extent / 2^depth)", ge=5, le=13)
+    depth: int = opt(9, "Poisson octree depth (resolution = points' extent / 2^depth)", ge=5, le=13)
     point_weight: float = opt(4.0, "Poisson screening weight: higher follows the points more closely", ge=0.0)
     density_quantile: float = opt(0.02, "drop Poisson vertices whose point density is below this quantile", ge=0.0, lt=1.0)
     bbox_margin: float = opt(0.02, "trim Poisson faces outside the points' box grown by this fraction of its size", ge=0.0)
     trim_distance: float = opt(4.0, "drop faces farther than this many Poisson cells from any input point (0: off)", ge=0.0)
     voxel_size: float = opt(0.0, "TSDF voxel size in scene units (0: voxel_fraction x scene extent)", ge=0.0)
-    voxel_fraction: float = opt(0.001, "TSDF voxel size as a fraction of the scene extent estimated from the depth maps", gt=0.0, le=0.1)
+    voxel_fraction: float = opt(0.002, "TSDF voxel size as a fraction of the scene extent estimated from the depth maps", gt=0.0, le=0.1)
     sdf_trunc_voxels: float = opt(4.0, "TSDF truncation distance in voxels", gt=1.0)
     min_views: float = opt(1.0, "TSDF: keep surface seen by at least this many depth maps (integration weight)", ge=0.0)
     depth_max_fraction: float = opt(0.0, "ignore depths beyond this fraction of the scene extent, 0: keep all", ge=0.0)
     min_component_fraction: float = opt(0.01, "drop connected pieces with less than this fraction of the total area", ge=0.0, lt=1.0)
-    target_faces: int = opt(300000, "decimate (quadric error) to at most this many faces (0: no decimation)", ge=0)
+    target_faces: int = opt(250000, "decimate (quadric error) to at most this many faces (0: no decimation)", ge=0)
 
 
 @dataclass(frozen=True)
@@ -39,6 +39,6 @@ class TextureOptions:
     border_margin: int = opt(2, "faces must project this many pixels inside the photo border", ge=0)
     expansion_cycles: int = opt(2, "alpha-expansion sweeps over all views in view selection", ge=0, le=20)
     levelling: bool = opt(True, "global colour adjustment between patches (Lempitsky and Ivanov 2007)")
-    levelling_weight: float = opt(0.1, "weight of the smoothness of the per-vertex colour corrections within a patch", gt=0.0)
+    levelling_weight: float = opt(10.0, "weight of the smoothness of the per-vertex colour corrections within a patch (seams weigh 1)", gt=0.0)
     seam_blending: bool = opt(True, "local blending of the remaining colour differences in a band along seams")
-    blend_band: int = opt(12, "width of the seam blending band in texels", ge=1, le=64)
+    blend_band: int = opt(8, "width of the seam blending band in texels", ge=1, le=64)

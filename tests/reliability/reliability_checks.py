@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[2]
-SPARSE = REPO / "pipelines" / "sparse.yaml"
+#: pipelines/sparse.yaml with single-threaded (bit-identical) SfM: the config of the sparse_workspace fixture
+SPARSE = REPO / "tests" / "sparse_test.yaml"
 INTERRUPTED = "recon: interrupted; finished stages and items are kept: run the same command again to resume"
 SPARSE_STAGES = ["ingest", "calibrate", "preprocess", "features", "matching", "sfm", "export"]
 #: the user-facing files of a sparse run that must be identical byte for byte on a re-run
@@ -48,7 +49,7 @@ def database_rows(path: Path) -> dict[str, list]:
             return {t: sorted(con.execute(f"SELECT * FROM {t}").fetchall(), key=repr) for t in tables}
 
 
-def assert_same_reconstruction(ws: Path, reference: Path, exact: bool = False) -> None:
+def assert_same_reconstruction(ws: Path, reference: Path, exact: bool = True) -> None:
     """The same database content and the same sparse model: identical files (``exact``, what
     ``sfm.deterministic`` promises), else the same photos registered with camera centres within
     1e-3 of the cameras' spread (multi-threaded bundle adjustment sums in scheduling order)."""

@@ -45,7 +45,7 @@ with open(result_file, "w") as f:
 """
 
 
-def catalogue(tmp: Path, images: Path, workspace: Path, photo: np.ndarray) -> list[tuple[dict, str]]:
+def catalogue(tmp: Path, scene: Path, workspace: Path, photo: np.ndarray) -> list[tuple[dict, str]]:
     """(case, what its error line says) for each bad input."""
     def folder(name: str) -> Path:
         path = tmp / name
@@ -64,6 +64,7 @@ def catalogue(tmp: Path, images: Path, workspace: Path, photo: np.ndarray) -> li
     one = folder("one photo")
     Image.fromarray(photo).save(one / "a.jpg")
     (tmp / "a file").write_text("not a folder")
+    images = scene / "images"
     run = ["run", str(SPARSE), "--images", str(images), "--workspace"]
     ws = str(tmp / "fresh ws")  # (tmp / "ws" is copy_workspace)
     cases = [
@@ -93,7 +94,7 @@ def catalogue(tmp: Path, images: Path, workspace: Path, photo: np.ndarray) -> li
         (["run", str(SPARSE)], "workspace: no workspace given"),
         (["status", str(folder("plain"))], "not a recon workspace"),
         (["clean", str(tmp / "plain")], "not a recon workspace"),
-        (["eval", str(tmp / "plain"), "--gt", str(tmp)], "no sparse model at sparse/0"),
+        (["eval", str(tmp / "plain"), "--gt", str(scene)], "no sparse model at sparse/0"),
         (["eval", str(workspace), "--gt", str(tmp / "absent")], "--gt"),
         (["view", str(tmp / "plain")], "no report.html"),
         (["config", "show", str(tmp / "absent.yaml")], "config file not found"),
@@ -106,7 +107,7 @@ def catalogue(tmp: Path, images: Path, workspace: Path, photo: np.ndarray) -> li
 def test_bad_inputs_get_one_line_and_no_traceback(tmp_path, small_scene, copy_workspace):
     photo = np.asarray(Image.open(small_scene / "images" / "view_000.jpg"))
     state = (copy_workspace / ".recon" / "state.json").read_text()
-    cases = catalogue(tmp_path, small_scene / "images", copy_workspace, photo)
+    cases = catalogue(tmp_path, small_scene, copy_workspace, photo)
     results_file = tmp_path / "results.json"
     subprocess.run([sys.executable, "-c", DRIVER, json.dumps([c for c, _ in cases]), str(results_file)],
                    check=True, timeout=300, cwd=tmp_path)

@@ -80,12 +80,13 @@ def test_12000px_photo_is_read_downscaled_in_bounded_memory(tmp_path, small_scen
 
 
 def test_photos_of_different_sizes_and_cameras_reconstruct_together(tmp_path, small_scene):
-    """Three cameras: the originals (320x240, EXIF focal), a higher-resolution one (400x300) and a
-    longer lens (a central 256x192 crop, no EXIF): one model of all 16 photos, a camera each."""
+    """Three cameras over 12 neighbouring views: the originals (320x240, EXIF focal), a higher
+    resolution one (400x300) and a longer lens (a central 256x192 crop, no EXIF): one model of all
+    12 photos, a camera each, with the right poses."""
     photos = tmp_path / "photos"
     for folder in ("phone", "camera", "zoom"):
         (photos / folder).mkdir(parents=True)
-    for i, path in enumerate(sorted((small_scene / "images").glob("*.jpg"))):
+    for i, path in enumerate(sorted((small_scene / "images").glob("*.jpg"))[:12]):
         img = Image.open(path)
         if i % 3 == 0:
             shutil.copy(path, photos / "phone" / path.name)
@@ -97,11 +98,12 @@ def test_photos_of_different_sizes_and_cameras_reconstruct_together(tmp_path, sm
     proc = cli("run", SPARSE, "--images", photos, "--workspace", ws)
     assert proc.returncode == 0, proc.stderr[-3000:]
     rec = pycolmap.Reconstruction(str(ws / "sparse" / "0"))
-    assert rec.num_reg_images() == 16
+    assert rec.num_reg_images() == 12
     assert sorted((c.width, c.height) for c in rec.cameras.values()) == [(256, 192), (320, 240), (400, 300)]
-    assert len(read_json(next(complete_outputs(ws, "sfm")[0].glob("models.json")))["models"]) == 1
-    figures = pose_metrics(registered_poses(ws), load_cameras(small_scene))
-    assert figures["registered"] == 16 and figures["auc@5"] > 80, figures
+    assert len(read_json(complete_outputs(ws, "sfm")[0] / "models.json")["models"]) == 1
+    poses = registered_poses(ws)
+    figures = pose_metrics(poses, {k: v for k, v in load_cameras(small_scene).items() if k in poses})
+    assert figures["registered"] == 12 and figures["auc@5"] > 80, figures
 
 
 # ---------------------------------------------------------------------------------------------

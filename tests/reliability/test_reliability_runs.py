@@ -51,7 +51,7 @@ def manifest_times(ws: Path) -> dict[str, list[float]]:
 def test_stop_in_every_stage_then_rerun_gives_the_same_model(signal_name, small_scene, sparse_workspace, tmp_path):
     """One workspace, stopped once inside each stage in turn; each run resumes the stage the one
     before stopped in, keeps every finished stage and item, and the last run completes with the
-    same model as an uninterrupted run. (Quick SIGKILL variants: below for sfm and export,
+    same model as an uninterrupted run. (Quick SIGKILL variants: below for ingest, sfm and export,
     tests/spine/test_resume.py for features and matching.)"""
     ws = tmp_path / "ws"
     args = run_args(small_scene, ws)
@@ -87,10 +87,13 @@ def test_stop_in_every_stage_then_rerun_gives_the_same_model(signal_name, small_
     assert_same_reconstruction(ws, sparse_workspace)
 
 
-@pytest.mark.parametrize("stage", ["sfm", "export"])
-def test_sigkill_in_a_late_stage_then_rerun_gives_the_same_model(stage, copy_workspace, sparse_workspace, small_scene):
+@pytest.mark.parametrize("stage", ["ingest", "sfm", "export"])
+def test_sigkill_in_a_stage_then_rerun_gives_the_same_model(stage, copy_workspace, sparse_workspace, small_scene):
+    """Quick variants of the SIGKILL chain: a finished workspace loses ``stage``'s output and the
+    outputs after it (ingest: its own only: an ingest that gives the same output, as checked here,
+    keeps the later stages' keys), is killed inside ``stage`` and run again."""
     ws = copy_workspace
-    later = SPARSE_STAGES[SPARSE_STAGES.index(stage):]
+    later = [stage] if stage == "ingest" else SPARSE_STAGES[SPARSE_STAGES.index(stage):]
     for name in later:
         shutil.rmtree(cache_dir(ws, name))
     before = manifest_times(ws)
@@ -104,6 +107,14 @@ def test_sigkill_in_a_late_stage_then_rerun_gives_the_same_model(stage, copy_wor
     now = manifest_times(ws)
     assert {s: now[s] for s in SPARSE_STAGES if s not in later} == {s: before[s] for s in SPARSE_STAGES if s not in later}
     assert all(partial_outputs(ws, s) == [] for s in SPARSE_STAGES)
+    for name in later:
+        output, = complete_outputs(ws, name)
+        original, = complete_outputs(sparse_workspace, name)
+        assert sorted(p.relative_to(output) for p in output.rglob("*")) == \
+            sorted(p.relative_to(original) for p in original.rglob("*"))
+        assert read_json(output / "manifest.json")["key"] == read_json(original / "manifest.json")["key"]
+    assert read_json(complete_outputs(ws, "ingest")[0] / "images.json") == \
+        read_json(complete_outputs(sparse_workspace, "ingest")[0] / "images.json")
     assert_same_reconstruction(ws, sparse_workspace)
 
 
@@ -131,8 +142,8 @@ def resize(path: Path, size: int) -> None:
 @pytest.mark.parametrize("stage", ["matching", "sfm"])
 def test_full_disk_keeps_the_last_complete_stage_and_says_so(stage, small_scene, sparse_workspace, tmp_path):
     """The workspace's disk fills up in ``stage`` (its earlier stages copied from a finished run):
-    one line says so and names the last complete stage, which is intact; once space is freed, the
-    same command finishes with the same model. matching meets a disk too small for its next pairs
+    one line says so and names the last complete stage, which is intact; once space is freed (sfm),
+    the same command finishes with the same model. matching meets a disk too small for its next pairs
     (COLMAP's matcher would abort the process when SQLite hits a full disk); sfm fills it while
     COLMAP writes the model (which COLMAP does not notice: the truncated model must not be taken
     for complete)."""
@@ -156,6 +167,9 @@ def test_full_disk_keeps_the_last_complete_stage_and_says_so(stage, small_scene,
             original, = complete_outputs(sparse_workspace, name)
             assert sorted(p.name for p in kept.rglob("*")) == sorted(p.name for p in original.rglob("*"))
             assert read_json(kept / "manifest.json") == read_json(original / "manifest.json")
+        if stage == "matching":  # COLMAP has not touched the database: the resumed run is a plain one
+            assert complete_outputs(ws, "matching") == [] and len(partial_outputs(ws, "matching")) == 1
+            return
         resize(disk, 64 << 20)
         again = cli(*args)
         assert again.returncode == 0, again.stderr[-3000:]
@@ -168,20 +182,21 @@ def test_full_disk_keeps_the_last_complete_stage_and_says_so(stage, small_scene,
 
 
 def test_upgraded_stage_invalidates_only_its_cache_and_what_follows(copy_workspace, small_scene, monkeypatch):
-    """A new version of matching re-runs matching and the stages after it; the stages before it stay
-    cached, and the old matching output stays in the cache (going back costs nothing)."""
-    monkeypatch.setattr(type(REGISTRY["matching"]), "version", REGISTRY["matching"].version + 1)
+    """A new version of sfm re-runs sfm and the stage after it; the stages before it stay cached,
+    and the old sfm output stays in the cache (going back to the old version costs nothing)."""
+    sfm = type(REGISTRY["sfm"])
+    monkeypatch.setattr(sfm, "version", sfm.version + 1)
     rows = {r.name: r for r in recon.api.status(SPARSE, images=str(small_scene / "images"),
                                                  workspace=str(copy_workspace))}
-    assert rows["matching"].state == "stale"
-    assert rows["matching"].why == f"stage version {REGISTRY['matching'].version - 1} -> {REGISTRY['matching'].version}"
-    assert [rows[s].state for s in ("ingest", "features")] == ["done", "done"]
-    assert rows["sfm"].why == "upstream changed: matching"
-    features_before = complete_outputs(copy_workspace, "features")
+    assert rows["sfm"].state == "stale" and rows["sfm"].why == f"stage version {sfm.version - 1} -> {sfm.version}"
+    assert [rows[s].state for s in ("ingest", "features", "matching")] == ["done"] * 3
+    assert rows["export"].why == "upstream changed: sfm"
+    before = manifest_times(copy_workspace)
     result = recon.run(SPARSE, images=str(small_scene / "images"), workspace=str(copy_workspace))
-    assert result.ran == ["matching", "sfm", "export"]
-    assert result.cached == ["ingest", "calibrate", "preprocess", "features"]
-    assert complete_outputs(copy_workspace, "features") == features_before
-    assert len(complete_outputs(copy_workspace, "matching")) == 2
+    assert result.ran == ["sfm", "export"]
+    assert result.cached == ["ingest", "calibrate", "preprocess", "features", "matching"]
+    after = manifest_times(copy_workspace)
+    assert all(after[s] == before[s] for s in result.cached)
+    assert len(after["sfm"]) == 2 and len(after["export"]) == 2
     monkeypatch.undo()
     assert recon.run(SPARSE, images=str(small_scene / "images"), workspace=str(copy_workspace)).ran == []

@@ -96,3 +96,16 @@ def test_second_run_on_a_workspace_in_use_is_refused(copy_workspace, small_scene
         holder.wait()
     with Workspace(copy_workspace).locked():  # a killed holder leaves no stale lock
         pass
+
+
+def test_rerun_stage_hides_outputs_made_from_its_old_output(copy_workspace, small_scene):
+    """After sfm re-runs with --until sfm, export's files (made from the old model) leave the workspace."""
+    assert (copy_workspace / "points.ply").exists()
+    result = recon.run(SPARSE, images=str(small_scene / "images"), workspace=str(copy_workspace),
+                       until="sfm", sfm={"ba_local_images": 8})
+    assert result.ran == ["sfm"]
+    assert not (copy_workspace / "points.ply").exists() and not (copy_workspace / "transforms.json").exists()
+    assert (copy_workspace / "sparse" / "0" / "images.bin").exists()
+    again = recon.run(SPARSE, images=str(small_scene / "images"), workspace=str(copy_workspace),
+                      sfm={"ba_local_images": 8})
+    assert again.ran == ["export"] and (copy_workspace / "points.ply").exists()

@@ -87,7 +87,8 @@ def bake(lay: Layout, faces: np.ndarray, labels: np.ndarray, corner_corr: np.nda
     corr = np.zeros_like(atlas)
     corr[covered] = np.einsum("nk,nkc->nc", bary[covered], corner_corr[face_map[covered]])
     dist, (iy, ix) = ndimage.distance_transform_edt(~covered, return_indices=True)
-    continues = np.abs(depth - depth[iy, ix]) <= _DEPTH_STEP * (1 + dist) * depth[iy, ix]
+    with np.errstate(invalid="ignore"):  # inf - inf off the surface: not a continuation
+        continues = np.abs(depth - depth[iy, ix]) <= _DEPTH_STEP * (1 + dist) * depth[iy, ix]
     atlas = np.where(continues[..., None], atlas, atlas[iy, ix]) + corr[iy, ix]
     if len(lay.fill_faces):
         c = vertex_color[faces[lay.fill_faces]]  # U, 3 corners, 3

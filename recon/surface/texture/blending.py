@@ -108,7 +108,7 @@ def blend_seams(atlas: np.ndarray, lay: Layout, vertices: np.ndarray, faces: np.
         lap = (sp.csr_matrix((-np.ones(len(rows)), (rows, cols)), shape=(m, m)) + sp.diags(degree + 1e-6)).tocsr()
         jacobi = sp.diags(1.0 / (degree + 1e-6))
         for c in range(3):
-            delta[uy, ux, c], _ = cg(lap, rhs[:, c], M=jacobi, rtol=1e-3, maxiter=20 * band)
+            delta[uy, ux, c], _ = cg(lap, rhs[:, c], M=jacobi, rtol=1e-2, maxiter=10 * band)
     log.info("seam blending: %d seam edges, %d pinned and %d band texels, mean change %.2f", len(fa),
              int(fixed.sum()), m, float(np.abs(half).mean()))
     return np.clip(atlas + delta.astype(np.float32), 0, 255)

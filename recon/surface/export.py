@@ -1,0 +1,49 @@
+"""Writing surfaces: textured glTF binary (GLB, texture embedded), Wavefront OBJ + MTL + PNG, and PLY with
+vertex colours."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import trimesh
+from trimesh.exchange.obj import export_obj
+
+from recon.surface.texture.model import TexturedMesh
+
+log = logging.getLogger(__name__)
+
+
+def write_glb(textured: TexturedMesh, path: str | Path) -> Path:
+    """A GLB holding the mesh, its UVs and the atlas (PNG) as the base colour texture."""
+    path = Path(path)
+    path.write_bytes(textured.to_trimesh().export(file_type="glb"))
+    log.info("wrote %s (%d faces, %d x %d texture)", path, len(textured.faces), textured.texture.shape[1],
+             textured.texture.shape[0])
+    return path
+
+
+def write_obj(textured: TexturedMesh, path: str | Path) -> Path:
+    """``<name>.obj`` with ``<name>.mtl`` and the atlas as ``<name>.png`` beside it; returns the OBJ's path."""
+    path = Path(path)
+    mesh = textured.to_trimesh()
+    # white diffuse and ambient, no specular: viewers multiply map_Kd by Kd (trimesh's default is 0.4 grey)
+    mesh.visual.material = trimesh.visual.material.SimpleMaterial(
+        image=mesh.visual.material.baseColorTexture, diffuse=(255, 255, 255, 255), ambient=(255, 255, 255, 255),
+        specular=(0, 0, 0, 255), name=path.stem)
+    text, files = export_obj(mesh, include_normals=False, include_texture=True, return_texture=True,
+                             mtl_name=f"{path.stem}.mtl")
+    for name, data in files.items():
+        (path.parent / name).write_bytes(data)
+    path.write_text(text)
+    log.info("wrote %s with %s", path, ", ".join(sorted(files)))
+    return path
+
+
+def write_ply(mesh: trimesh.Trimesh | TexturedMesh, path: str | Path) -> Path:
+    """A binary PLY of the mesh with its vertex colours (a TexturedMesh gives its levelled vertex colours)."""
+    path = Path(path)
+    if isinstance(mesh, TexturedMesh):
+        mesh = mesh.colored_mesh()
+    path.write_bytes(mesh.export(file_type="ply"))
+    return path

@@ -1,0 +1,40 @@
+import numpy as np
+import pytest
+
+from recon.eval.surface import surface_metrics
+from recon.surface.cleanup import clean_mesh
+from recon.surface.options import MeshOptions
+from recon.surface.poisson import poisson_mesh
+from recon.surface.tsdf import tsdf_mesh
+
+
+def test_poisson_is_accurate_and_trimmed(small_scene):
+    pts, nrm, col = small_scene.points()
+    mesh = clean_mesh(poisson_mesh(pts, nrm, col, MeshOptions(depth=9)), MeshOptions(target_faces=0))
+    m = surface_metrics(mesh, small_scene.info)
+    assert m["fscore@0.002"] >= 93 and m["fscore@0.005"] >= 97
+    # no balloon: nothing beyond the points' box grown by the margin
+    lo, hi = pts.min(0), pts.max(0)
+    margin = MeshOptions().bbox_margin * (hi - lo).max()
+    assert np.all(mesh.vertices >= lo - margin - 1e-9) and np.all(mesh.vertices <= hi + margin + 1e-9)
+    # vertex colours come from the points: the mean colour matches
+    assert np.abs(mesh.visual.vertex_colors[:, :3].mean(0) - col.mean(0)).max() < 15
+
+
+def test_poisson_density_trim_removes_unsupported_surface(small_scene):
+    pts, nrm, _ = small_scene.points(step=2)
+    loose = poisson_mesh(pts, nrm, options=MeshOptions(depth=8, density_quantile=0, trim_distance=0, bbox_margin=1))
+    tight = poisson_mesh(pts, nrm, options=MeshOptions(depth=8))
+    assert tight.area < loose.area
+    assert surface_metrics(tight, small_scene.info)["accuracy@0.005"] > surface_metrics(loose, small_scene.info)["accuracy@0.005"]
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.001])
+def test_tsdf_is_accurate(small_scene, noise):
+    rng = np.random.default_rng(0)
+    depths = [np.where(d > 0, d * (1 + rng.normal(0, noise, d.shape)), 0).astype(np.float32)
+              for d in small_scene.depths]
+    mesh = tsdf_mesh(depths, small_scene.images, small_scene.cameras, MeshOptions(method="tsdf", voxel_fraction=0.003))
+    m = surface_metrics(mesh, small_scene.info)
+    assert m["fscore@0.002"] >= (90 if noise == 0 else 80) and m["fscore@0.005"] >= 97
+    assert mesh.visual.kind == "vertex"

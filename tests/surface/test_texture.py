@@ -1,0 +1,64 @@
+import numpy as np
+import pytest
+
+from recon.eval.texture import masked_psnr, render, seam_jump
+from recon.surface.raycast import render_ids, scene_of
+from recon.surface.options import TextureOptions
+from recon.surface.texture import texture_mesh
+
+from conftest import with_gains
+
+
+@pytest.fixture(scope="module")
+def mesh(small_scene):
+    return small_scene.gt_mesh.subdivide_to_size(0.1)
+
+
+def _holdout_psnr(scene, textured, vertex_colors=False):
+    out = []
+    for cam, gt in zip(scene.holdout_cameras, scene.holdout_images, strict=True):
+        image, mask = render(textured, cam, gt.shape[1], gt.shape[0], vertex_colors=vertex_colors)
+        out.append(masked_psnr(image, gt, mask))
+    return float(np.mean(out))
+
+
+def test_holdout_views_beat_vertex_colours(small_scene, mesh):
+    textured = texture_mesh(mesh, small_scene.images, small_scene.cameras)
+    psnr = _holdout_psnr(small_scene, textured)
+    assert psnr >= 28
+    assert psnr >= _holdout_psnr(small_scene, textured, vertex_colors=True) + 2
+    seen = textured.face_view >= 0
+    assert seen.mean() > 0.9  # the ground's far corners and the objects' bottoms are all that is unseen
+    assert textured.uv.min() >= 0 and textured.uv.max() <= 1
+
+
+def test_levelling_halves_seam_jumps(small_scene, mesh):
+    photos = with_gains(small_scene.images)
+    raw = seam_jump(texture_mesh(mesh, photos, small_scene.cameras,
+                                 TextureOptions(levelling=False, seam_blending=False)))
+    global_only = seam_jump(texture_mesh(mesh, photos, small_scene.cameras, TextureOptions(seam_blending=False)))
+    levelled = seam_jump(texture_mesh(mesh, photos, small_scene.cameras))
+    assert global_only < 0.6 * raw
+    assert levelled < 0.5 * raw and levelled < global_only
+
+
+def test_texture_reproduces_the_photos(small_scene, mesh):
+    """Rendered into one of its own views, the texture gives back that photo where it was used."""
+    textured = texture_mesh(mesh, small_scene.images, small_scene.cameras,
+                            TextureOptions(levelling=False, seam_blending=False))
+    k = 3
+    cam, photo = small_scene.cameras[k], small_scene.images[k]
+    image, mask = render(textured, cam, photo.shape[1], photo.shape[0])
+    ids = render_ids(scene_of(textured.vertices, textured.faces), cam, photo.shape[1], photo.shape[0])
+    own = mask & (textured.face_view[np.maximum(ids["face"], 0)] == k)
+    assert own.sum() > 1000
+    assert masked_psnr(image, photo, own) > 38
+
+
+def test_small_atlas_limit_scales_charts_down(small_scene, mesh):
+    full = texture_mesh(mesh, small_scene.images, small_scene.cameras, TextureOptions(seam_blending=False))
+    assert max(full.texture.shape[:2]) > 600
+    small = texture_mesh(mesh, small_scene.images, small_scene.cameras,
+                         TextureOptions(max_texture_size=512, seam_blending=False))
+    assert max(small.texture.shape[:2]) <= 512
+    assert _holdout_psnr(small_scene, small) > 26  # about 4 dB below the full-size atlas (33 dB)
