@@ -5,6 +5,10 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+# numba's compiler must be loaded before pycolmap (see recon/mvs/__init__.py): every entry point
+# imports this package first, so this keeps the order right wherever pycolmap is imported later.
+import llvmlite.binding  # noqa: F401
+
 __version__ = "0.1.0"
 
 

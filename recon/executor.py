@@ -62,7 +62,7 @@ class Executor:
             # (BLAS, COLMAP's thread pools) cannot deadlock a forked child.
             ctx = multiprocessing.get_context("forkserver")
             # the server imports the heavy libraries once, so each worker starts in milliseconds
-            ctx.set_forkserver_preload(["numpy", "cv2", "pycolmap", "recon.sparse.features", "recon.logs"])
+            ctx.set_forkserver_preload(["recon", "numpy", "cv2", "pycolmap", "recon.sparse.features", "recon.logs"])
             return cf.ProcessPoolExecutor(max_workers=self.workers, mp_context=ctx, initializer=_worker_setup,
                                           initargs=(os.getpid(),))
         from dask.distributed import Client, LocalCluster

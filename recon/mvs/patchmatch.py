@@ -212,8 +212,9 @@ def _plane_depth_at(kinv, depth, n0, n1, n2, xn, yn, x, y):
 # --- matching cost ------------------------------------------------------------------------------
 
 @njit(cache=True, fastmath=True)
-def _bilinear(img, u, v, width, height):
-    """Image sampled at continuous pixel coordinates (u, v) (pixel centres at .5), clamped."""
+def _bilinear(srcs, s, u, v, width, height):
+    """Image s of the stack sampled at continuous pixel coordinates (u, v) (pixel centres at .5),
+    clamped to the image."""
     x = u - 0.5
     y = v - 0.5
     if not x > 0.0:  # also catches NaN
@@ -224,12 +225,24 @@ def _bilinear(img, u, v, width, height):
         y = 0.0
     elif y > height - 1.001:
         y = height - 1.001
-    ix = int(x)
-    iy = int(y)
+    return _interpolate(srcs, s, x, y)
+
+
+@njit(cache=True, fastmath=True)
+def _interpolate(srcs, s, x, y):
+    """Bilinear interpolation of image s at array coordinates (x, y) >= 0 inside the image.
+
+    Indices are unsigned so that no negative-index handling enters the innermost loops; the stack is
+    indexed directly (taking ``srcs[s]`` would create an array view, whose reference counting costs
+    more than the interpolation when two threads share the array).
+    """
+    ix = np.uintp(x)
+    iy = np.uintp(y)
     ax = x - ix
     ay = y - iy
-    top = img[iy, ix] + ax * (img[iy, ix + 1] - img[iy, ix])
-    bottom = img[iy + 1, ix] + ax * (img[iy + 1, ix + 1] - img[iy + 1, ix])
+    one = np.uintp(1)
+    top = srcs[s, iy, ix] + ax * (srcs[s, iy, ix + one] - srcs[s, iy, ix])
+    bottom = srcs[s, iy + one, ix] + ax * (srcs[s, iy + one, ix + one] - srcs[s, iy + one, ix])
     return top + ay * (bottom - top)
 
 
@@ -308,10 +321,10 @@ def _best_views(costs, k):
 
 
 @njit(cache=True, fastmath=True)
-def _warped_sums(img, cu, cv, dudx, dudy, dvdx, dvdy, window, weights, centred, width, height):
-    """Weighted sums (s, s^2, centred-reference * s) over the source window around (cu, cv) whose
-    sample at window offset (dx, dy) sits at (cu, cv) + J (dx, dy); bounds are checked once per
-    window unless it touches the image border."""
+def _warped_sums(srcs, s, cu, cv, dudx, dudy, dvdx, dvdy, window, weights, centred, width, height):
+    """Weighted sums (s, s^2, centred-reference * s) over the window of source s around (cu, cv)
+    whose sample at window offset (dx, dy) sits at (cu, cv) + J (dx, dy); bounds are checked once
+    per window unless it touches the image border."""
     start, step, count = window[0], window[1], window[2]
     radius = max(-start, start + step * (count - 1))
     reach_u = (abs(dudx) + abs(dudy)) * radius
@@ -330,17 +343,9 @@ def _warped_sums(img, cu, cv, dudx, dudy, dvdx, dvdy, window, weights, centred, 
         v = cv + dvdx * start + dvdy * dy
         for _ in range(count):
             if inside:
-                x = u - 0.5
-                y = v - 0.5
-                ix = int(x)
-                iy = int(y)
-                ax = x - ix
-                ay = y - iy
-                top = img[iy, ix] + ax * (img[iy, ix + 1] - img[iy, ix])
-                bottom = img[iy + 1, ix] + ax * (img[iy + 1, ix + 1] - img[iy + 1, ix])
-                value = top + ay * (bottom - top)
+                value = _interpolate(srcs, s, u - 0.5, v - 0.5)
             else:
-                value = _bilinear(img, u, v, width, height)
+                value = _bilinear(srcs, s, u, v, width, height)
             w = weights[k]
             sum_s += w * value
             sum_ss += w * value * value
@@ -402,7 +407,7 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
         dudy = (h01 - cu * h21) * inv
         dvdx = (h10 - cv * h20) * inv
         dvdy = (h11 - cv * h21) * inv
-        sum_s, sum_ss, sum_rs = _warped_sums(srcs[s], cu, cv, dudx, dudy, dvdx, dvdy, window,
+        sum_s, sum_ss, sum_rs = _warped_sums(srcs, s, cu, cv, dudx, dudy, dvdx, dvdy, window,
                                              weights, centred, width, height)
         var_s = sum_ss - sum_s * sum_s
         if var_s < min_var:
@@ -506,15 +511,15 @@ def evaluate(ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max, 
 
 
 @njit(cache=True, fastmath=True)
-def _best_in_region(cost, x, y, region_offsets, count):
-    """The in-image neighbour of the region with the lowest current cost (-1, -1 if none)."""
+def _best_in_region(cost, x, y, region_offsets, r, count):
+    """The in-image neighbour of region r with the lowest current cost (-1, -1 if none)."""
     height, width = cost.shape
     best = np.inf
     bx = -1
     by = -1
     for i in range(count):
-        xx = x + region_offsets[i, 0]
-        yy = y + region_offsets[i, 1]
+        xx = x + region_offsets[r, i, 0]
+        yy = y + region_offsets[r, i, 1]
         if xx >= 0 and yy >= 0 and xx < width and yy < height and cost[yy, xx] < best:
             best = cost[yy, xx]
             bx = xx
@@ -555,7 +560,7 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
             b2 = normal[y, x, 2]
             # propagation
             for r in range(n_regions):
-                xn, yn = _best_in_region(cost, x, y, region_offsets[r], region_counts[r])
+                xn, yn = _best_in_region(cost, x, y, region_offsets, r, region_counts[r])
                 if xn < 0:
                     continue
                 n0 = normal[yn, xn, 0]

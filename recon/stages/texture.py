@@ -18,25 +18,12 @@ class TextureConfig(TextureOptions):
 
 
 def write_exports(textured, out) -> dict:
-    """textured.glb, textured.obj/.mtl/.png and mesh.ply (levelled vertex colours), each written atomically."""
-    from trimesh.exchange.obj import export_obj
+    """textured.glb, textured.obj/.mtl/.png and mesh.ply (levelled vertex colours); sizes in bytes."""
+    from recon.surface.export import write_glb, write_obj, write_ply
 
-    tm = textured.to_trimesh()
-    files = {"textured.glb": tm.export(file_type="glb")}
-    obj_text, extra = export_obj(tm, include_texture=True, return_texture=True, mtl_name="textured.mtl")
-    files["textured.obj"] = obj_text.encode()
-    images = [name for name in extra if name != "textured.mtl"]
-    mtl = extra["textured.mtl"].decode()
-    for name in images:  # one atlas: name it after the model
-        mtl = mtl.replace(name, "textured.png")
-        files["textured.png"] = extra[name]
-    files["textured.mtl"] = mtl.encode()
-    files["mesh.ply"] = textured.colored_mesh().export(file_type="ply")
-    for name, data in files.items():
-        tmp = out / f".{name}.tmp"
-        tmp.write_bytes(data if isinstance(data, bytes) else bytes(data))
-        tmp.replace(out / name)
-    return {name: len(data) for name, data in files.items()}
+    paths = [write_glb(textured, out / "textured.glb"), write_obj(textured, out / "textured.obj"),
+             write_ply(textured, out / "mesh.ply")]
+    return {p.name: p.stat().st_size for p in paths}
 
 
 @register

@@ -30,7 +30,7 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | N
     pcd.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-            pcd, depth=options.depth, point_weight=options.point_weight, n_threads=0)
+            pcd, depth=options.depth, point_weight=options.point_weight)
     vertices = np.asarray(mesh.vertices)
     faces = np.asarray(mesh.triangles)
     density = np.asarray(density)
@@ -44,15 +44,16 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | N
     margin = options.bbox_margin * (hi - lo).max()
     keep_vertex &= np.all((vertices >= lo - margin) & (vertices <= hi + margin), axis=1)
     keep_face = keep_vertex[faces].all(axis=1)
+    tree = cKDTree(points)
     if options.trim_distance > 0:
         cell = (hi - lo).max() / 2**options.depth
         centroids = vertices[faces].mean(axis=1)
-        dist, _ = cKDTree(points).query(centroids, distance_upper_bound=options.trim_distance * cell)
+        dist, _ = tree.query(centroids, distance_upper_bound=options.trim_distance * cell, workers=-1)
         keep_face &= np.isfinite(dist)
     out = trimesh.Trimesh(vertices, faces[keep_face], process=False)
     out.remove_unreferenced_vertices()
     if colors is not None:
-        _, nearest = cKDTree(points).query(out.vertices)
+        _, nearest = tree.query(out.vertices, workers=-1)
         out.visual.vertex_colors = np.asarray(colors, np.uint8)[nearest]
     log.info("poisson trimmed to %d faces", len(out.faces))
     return out

@@ -22,9 +22,9 @@ QUICK = ["sfm.deterministic=true", "undistort.max_image_size=240", "mvs.max_imag
          "mvs.iterations=3", "mesh.depth=8", "mesh.target_faces=40000", "texture.max_faces=20000"]
 
 
-def run_cli(ws: Path, scene: Path, *extra: str) -> subprocess.CompletedProcess:
+def run_cli(ws: Path, scene: Path, *extra: str, flags: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "recon.cli", "run", str(FULL), "--images", str(scene / "images"),
-           "--workspace", str(ws), "-o", "executor=serial"]
+           "--workspace", str(ws), "-o", "executor=serial", *flags]
     for o in [*QUICK, *extra]:
         cmd += ["-o", o]
     return subprocess.run(cmd, capture_output=True, text=True)
@@ -114,3 +114,20 @@ def test_textured_exports_load_with_their_texture(dense_workspace):
     assert np.asarray(obj.visual.material.image).shape == np.asarray(Image.open(dense_workspace / "textured.png")).shape
     colored = trimesh.load(dense_workspace / "mesh.ply")
     assert colored.visual.vertex_colors[:, :3].std() > 10
+
+
+def test_mesh_is_reproducible(dense_workspace, small_scene, tmp_path):
+    """The same config and seed give the same mesh (issue 7): re-running the mesh stage rewrites it identically."""
+    import shutil
+
+    import trimesh
+
+    ws = tmp_path / "ws"
+    shutil.copytree(dense_workspace, ws, symlinks=True)
+    first = next(ws.glob(".recon/cache/mesh/*/mesh.ply")).read_bytes()
+    done = run_cli(ws, small_scene, flags=("--force", "mesh", "--until", "mesh"))
+    assert done.returncode == 0, done.stderr
+    second = next(ws.glob(".recon/cache/mesh/*/mesh.ply")).read_bytes()
+    a, b = trimesh.load(trimesh.util.wrap_as_stream(first), file_type="ply"), \
+        trimesh.load(trimesh.util.wrap_as_stream(second), file_type="ply")
+    assert np.array_equal(a.faces, b.faces) and np.array_equal(a.vertices, b.vertices)

@@ -45,7 +45,7 @@ def with_gains(images: list[np.ndarray], seed: int = 1) -> list[np.ndarray]:
     return [np.clip(im * g + 0.5, 0, 255).astype(np.uint8) for im, g in zip(images, gains, strict=True)]
 
 
-def _load(info: SceneInfo) -> Scene:
+def load_arrays(info: SceneInfo) -> Scene:
     def read(folder, names):
         return [np.asarray(Image.open(folder / n).convert("RGB")) for n in names]
 
@@ -58,4 +58,4 @@ def _load(info: SceneInfo) -> Scene:
 @pytest.fixture(scope="session")
 def small_scene(tmp_path_factory) -> Scene:
     """12 views of 320 x 240 on an orbit, and 2 hold-out views."""
-    return _load(render_scene(tmp_path_factory.mktemp("synth"), views=12, width=320, height=240, holdout=2))
+    return load_arrays(render_scene(tmp_path_factory.mktemp("synth"), views=12, width=320, height=240, holdout=2))

@@ -9,8 +9,8 @@ from recon.surface.tsdf import tsdf_mesh
 
 
 def test_poisson_is_accurate_and_trimmed(small_scene):
-    pts, nrm, col = small_scene.points()
-    mesh = clean_mesh(poisson_mesh(pts, nrm, col, MeshOptions(depth=9)), MeshOptions(target_faces=0))
+    pts, nrm, col = small_scene.points(step=2)
+    mesh = clean_mesh(poisson_mesh(pts, nrm, col, MeshOptions(depth=8)), MeshOptions(target_faces=0))
     m = surface_metrics(mesh, small_scene.info)
     assert m["fscore@0.002"] >= 93 and m["fscore@0.005"] >= 97
     # no balloon: nothing beyond the points' box grown by the margin
@@ -22,9 +22,9 @@ def test_poisson_is_accurate_and_trimmed(small_scene):
 
 
 def test_poisson_density_trim_removes_unsupported_surface(small_scene):
-    pts, nrm, _ = small_scene.points(step=2)
-    loose = poisson_mesh(pts, nrm, options=MeshOptions(depth=8, density_quantile=0, trim_distance=0, bbox_margin=1))
-    tight = poisson_mesh(pts, nrm, options=MeshOptions(depth=8))
+    pts, nrm, _ = small_scene.points(step=3)
+    loose = poisson_mesh(pts, nrm, options=MeshOptions(depth=7, density_quantile=0, trim_distance=0, bbox_margin=1))
+    tight = poisson_mesh(pts, nrm, options=MeshOptions(depth=7))
     assert tight.area < loose.area
     assert surface_metrics(tight, small_scene.info)["accuracy@0.005"] > surface_metrics(loose, small_scene.info)["accuracy@0.005"]
 

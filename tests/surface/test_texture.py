@@ -1,12 +1,12 @@
 import numpy as np
 import pytest
+from conftest import with_gains
 
 from recon.eval.texture import masked_psnr, render, seam_jump
-from recon.surface.raycast import render_ids, scene_of
 from recon.surface.options import TextureOptions
+from recon.surface.raycast import render_ids, scene_of
 from recon.surface.texture import texture_mesh
-
-from conftest import with_gains
+from recon.surface.texture.raster import sample_bilinear
 
 
 @pytest.fixture(scope="module")
@@ -62,3 +62,17 @@ def test_small_atlas_limit_scales_charts_down(small_scene, mesh):
                          TextureOptions(max_texture_size=512, seam_blending=False))
     assert max(small.texture.shape[:2]) <= 512
     assert _holdout_psnr(small_scene, small) > 26  # about 4 dB below the full-size atlas (33 dB)
+
+
+def test_unseen_faces_are_filled_from_their_neighbours(small_scene, mesh):
+    """Faces no photo sees (the objects' undersides) show the exact linear interpolation of their vertex
+    colours."""
+    textured = texture_mesh(mesh, small_scene.images[:4], small_scene.cameras[:4])
+    unseen = np.flatnonzero(textured.face_view < 0)
+    assert len(unseen) > 100
+    h, w = textured.texture.shape[:2]
+    for bary in ([1 / 3, 1 / 3, 1 / 3], [0.6, 0.3, 0.1], [0.05, 0.05, 0.9]):
+        uv = np.einsum("k,nkc->nc", bary, textured.uv[unseen])
+        tex = sample_bilinear(textured.texture.astype(np.float32), uv[:, 0] * w, (1 - uv[:, 1]) * h)
+        expected = np.einsum("k,nkc->nc", bary, textured.vertex_colors[textured.faces[unseen]].astype(float))
+        assert np.abs(tex - expected).mean() < 1.0
