@@ -32,7 +32,7 @@ def test_odd_formats_become_upright_8bit(tmp_path, photo):
     src.mkdir()
     Image.fromarray(photo).save(src / "a_rgb.jpg", quality=95)
     Image.fromarray(photo).convert("L").save(src / "b_gray.png")
-    Image.fromarray((photo[..., 0].astype(np.uint16) * 257)).save(src / "c_16bit.png")
+    Image.fromarray(photo[..., 0].astype(np.uint16) * 257).save(src / "c_16bit.png")
     Image.fromarray(photo).convert("RGBA").save(src / "d_rgba.png")
     Image.fromarray(photo).convert("CMYK").save(src / "e_cmyk.jpg")
     rotated = Image.fromarray(photo).rotate(90, expand=True)  # stored sideways, EXIF says rotate back
