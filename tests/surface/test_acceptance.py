@@ -5,7 +5,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import load_arrays, with_gains
+from surface_scene import load_arrays, with_gains
 
 from recon.eval.surface import surface_metrics
 from recon.eval.texture import masked_psnr, render, seam_jump

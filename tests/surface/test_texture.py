@@ -1,6 +1,6 @@
 import numpy as np
 import pytest
-from conftest import with_gains
+from surface_scene import with_gains
 
 from recon.eval.texture import masked_psnr, render, seam_jump
 from recon.surface.options import TextureOptions
