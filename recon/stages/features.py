@@ -24,7 +24,7 @@ class FeaturesConfig:
     type: str = opt("sift", "feature type; only 'sift' runs on the CPU pycolmap wheel")
     max_image_size: int = opt(1600, "longest image side for extraction (photos are downsized, anti-aliased)", gt=0)
     max_num_features: int = opt(8192, "keep at most this many features per photo", gt=0)
-    min_image_size: int = opt(960, "smaller photos are upsized (bicubic) to this longest side for extraction",
+    min_image_size: int = opt(800, "smaller photos are upsized (bicubic) to this longest side for extraction",
                               ge=0)
     first_octave: int = opt(0, "SIFT first octave: -1 upsamples 2x inside SIFT (COLMAP's default; slow)",
                             ge=-1, le=3)
