@@ -47,10 +47,8 @@ def run(config: str | Path | dict | None = None, *, images: str | None = None, w
             merged.update({f"{section}.{k}": v for k, v in values.items()})
         else:
             merged[section] = values
-    cfg = load(config, extra, images=images, workspace=workspace)
-    if merged:
-        cfg = load(config, [*extra, *[f"{k}={_yaml(v)}" for k, v in merged.items()]], images=images,
-                   workspace=workspace)
+    cfg = load(config, [*extra, *[f"{k}={_yaml(v)}" for k, v in merged.items()]], images=images,
+               workspace=workspace)
     ws = Workspace(cfg.workspace)
     ws.create()
     _last_log[:] = [ws.meta / "recon.log"]

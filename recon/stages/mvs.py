@@ -27,28 +27,21 @@ def colmap_cuda_available() -> bool:
     try:
         import pycolmap
 
-        return bool(pycolmap.has_cuda) and pycolmap.get_num_cuda_devices() > 0 \
-            if hasattr(pycolmap, "get_num_cuda_devices") else bool(pycolmap.has_cuda)
+        devices = getattr(pycolmap, "get_num_cuda_devices", lambda: 1)  # absent in some builds
+        return bool(pycolmap.has_cuda) and devices() > 0
     except ImportError:
         return False
 
 
-def _photometric(task) -> str:
+def _view_pass(task) -> str:
+    """One view's photometric or geometric pass, in a worker process."""
     from recon.logs import quiet_colmap
-    from recon.mvs.stereo import photometric_view
+    from recon.mvs import stereo
 
     quiet_colmap()
-    dense, problem, options, out = task
-    return str(photometric_view(dense, problem, options, out))
-
-
-def _geometric(task) -> str:
-    from recon.logs import quiet_colmap
-    from recon.mvs.stereo import geometric_view
-
-    quiet_colmap()
-    dense, problem, options, out = task
-    return str(geometric_view(dense, problem, options, out))
+    pass_name, dense, problem, options, out = task
+    view = stereo.photometric_view if pass_name == "photometric" else stereo.geometric_view
+    return str(view(dense, problem, options, out))
 
 
 @register
@@ -88,11 +81,9 @@ class Mvs(Stage):
         problems = select_problems(pycolmap.Reconstruction(str(dense / "sparse")), options)
         if not problems:
             raise StageError("mvs: no view has source views with enough shared points and baseline")
-        tasks = [(dense, p, options, stereo) for p in problems]
-        ctx.map(_photometric, tasks, desc="mvs photometric",
-                done=lambda t: map_path(stereo, "depth", t[1].ref, "photometric").exists())
-        ctx.map(_geometric, tasks, desc="mvs geometric",
-                done=lambda t: map_path(stereo, "depth", t[1].ref, "geometric").exists())
+        for pass_name in ("photometric", "geometric"):  # every view's photometric maps before any geometric
+            ctx.map(_view_pass, [(pass_name, dense, p, options, stereo) for p in problems],
+                    desc=f"mvs {pass_name}", done=lambda t: map_path(stereo, "depth", t[2].ref, t[0]).exists())
         return _coverage(stereo, [p.ref for p in problems], backend="cpu")
 
     def _colmap_cuda(self, ctx: StageContext, dense: Path, stereo: Path, cfg: MvsConfig) -> dict:
