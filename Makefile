@@ -3,7 +3,7 @@ VENV ?= .venv
 PYTHON ?= python3
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: install demo test test-slow bench lint clean
+.PHONY: install demo test test-slow bench bench-scale lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,9 @@ test-slow: install
 
 bench: install
 	$(VENV)/bin/python -m recon.bench
+
+bench-scale: install
+	$(VENV)/bin/python -m recon.bench --only scale
 
 lint: install
 	$(VENV)/bin/ruff check recon tests

@@ -173,7 +173,53 @@ def evaluate(workspace: str | Path, gt: str | Path) -> dict:
             geometry = trimesh.load(path, process=False)
             geometry.vertices = sim.apply(np.asarray(geometry.vertices))
             figures[key] = surface_metrics(geometry, scene)
+    if (ws / "dense" / "fused.ply").exists() and (ws / "dense" / "stereo" / "depth_maps").is_dir() and len(est) >= 3:
+        figures["fused_reprojection"] = _fused_reprojection(ws, gt_cams, model_to_ground_truth(ws, gt))
     return figures
+
+
+def _fused_reprojection(ws: Path, gt_cams: dict, to_gt, max_points: int = 200_000) -> dict:
+    """Reprojection error of (a sample of) the fused cloud into the ground-truth cameras, in pixels,
+    after refining ``to_gt`` on the sparse model's observations (:mod:`recon.eval.reprojection`)."""
+    import numpy as np
+    import pycolmap
+    import trimesh
+
+    from recon.eval.reprojection import DenseView, refine_alignment, reprojection_errors
+    from recon.mvs.colmap_io import read_depth_map
+    from recon.stages.mesh import dense_views, scaled_to
+
+    points = np.asarray(trimesh.load(ws / "dense" / "fused.ply").vertices)
+    if len(points) > max_points:
+        points = points[np.random.default_rng(0).choice(len(points), max_points, replace=False)]
+    sparse = pycolmap.Reconstruction(str(ws / "sparse" / "0"))
+    photos = {image.name: sparse.camera(image.camera_id) for image in sparse.images.values() if image.has_pose}
+    by_base = {Path(n).name: n for n in gt_cams}
+    views = []
+    for view in dense_views(ws / "dense"):
+        path = ws / "dense" / "stereo" / "depth_maps" / f"{view.name}.geometric.bin"
+        camera = photos.get(view.name)
+        if not path.exists() or camera is None or Path(view.name).name not in by_base:
+            continue
+        depth = read_depth_map(path)
+        scaled = scaled_to(view, depth.shape[1], depth.shape[0])
+        views.append(DenseView(by_base[Path(view.name).name], view.R, view.t, scaled.K, depth,
+                               lambda x, cam=camera: cam.img_from_cam(x), (camera.width, camera.height)))
+    observations = []
+    for image in sparse.images.values():
+        name = by_base.get(Path(image.name).name)
+        seen = [p for p in image.points2D if p.has_point3D()] if image.has_pose and name else []
+        if seen:
+            cam, truth = sparse.camera(image.camera_id), gt_cams[name]
+            scale = [truth.width / cam.width, truth.height / cam.height] if truth.width and truth.height else 1.0
+            observations.append((name, np.array([sparse.point3D(p.point3D_id).xyz for p in seen]),
+                                 np.array([p.xy for p in seen]) * scale))
+    to_gt = refine_alignment(observations, gt_cams, to_gt)
+    errors = reprojection_errors(points, views, gt_cams, to_gt)
+    if not len(errors):
+        return {}
+    return {"median_px": float(np.median(errors)), "p90_px": float(np.percentile(errors, 90)),
+            "observations": len(errors), "points": len(points)}
 
 
 def format_eval(figures: dict) -> str:
@@ -190,6 +236,11 @@ def format_eval(figures: dict) -> str:
             cells = "   ".join(f"@{100 * t:g}% of extent: accuracy {m[f'accuracy@{t:g}']:.1f} completeness "
                                f"{m[f'completeness@{t:g}']:.1f} F {m[f'fscore@{t:g}'] / 100:.3f}" for t in taus)
             lines.append(f"{key:<8} {cells}")
+    r = figures.get("fused_reprojection")
+    if r:
+        lines.append(f"fused    reprojection into the ground-truth cameras: median {r['median_px']:.2f} px, "
+                     f"90th percentile {r['p90_px']:.2f} px ({r['observations']} observations of "
+                     f"{r['points']} points)")
     return "\n".join(lines)
 
 
@@ -209,3 +260,78 @@ def demo(workspace: str | Path = "demo_workspace", config: str | Path | None = N
     run(config or DEMO_CONFIG, images=str(scene / "images"), workspace=str(workspace),
         overrides={"report.gt": str(scene)})
     return evaluate(workspace, scene)
+
+
+# ---------------------------------------------------------------------------------------------
+# Localization of new photos in an existing reconstruction
+
+
+def localize(workspace: str | Path, photos: str | Path | list[str | Path], out: str | Path | None = None, *,
+             overrides: list[str] | dict | None = None, **options: Any) -> dict:
+    """Place new photos in the reconstruction ``workspace`` (its ``sparse/0`` and ``database.db``).
+
+    ``photos``: photo files (linked into ``<out>/photos/``) or one folder of photos. ``out``: the
+    output workspace, by default ``<workspace>/localize``. ``options``: the ``localize`` stage's
+    (e.g. ``min_inliers=20``); ``overrides``: any other config key (``{"ingest.camera_model": ...}``).
+    Returns the content of ``<out>/poses.json`` with ``workspace`` (the output workspace) added;
+    the extended model is ``<out>/sparse/0``.
+    """
+    reference = Path(workspace).absolute()
+    if not reference.is_dir():
+        raise WorkspaceError(f"{workspace}: no such folder; give the workspace of a finished reconstruction")
+    target = Path(out).absolute() if out is not None else reference / "localize"
+    config = {"images": str(_photo_folder(photos, target)), "workspace": str(target),
+              "stages": ["ingest", "localize"], "ingest": {"min_photos": 1},
+              "localize": {"model": str(reference), **options}}
+    run(config, overrides=overrides)
+    result = read_json(target / "poses.json")
+    result["workspace"] = str(target)
+    return result
+
+
+def _photo_folder(photos: str | Path | list[str | Path], target: Path) -> Path:
+    """The folder of photos to localize: ``photos`` itself when it is one folder, else a folder of
+    links to the given files, kept in step with them (links to photos no longer given are removed)."""
+    items = [Path(photos)] if isinstance(photos, (str, Path)) else [Path(p) for p in photos]
+    if not items:
+        raise ConfigError("localize: no photos given")
+    if len(items) == 1 and items[0].is_dir():
+        return items[0].absolute()
+    for path in items:
+        if not path.is_file():
+            raise ConfigError(f"localize: {path} is not a photo file; give photo files, or one folder of photos")
+    names = [p.name for p in items]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError(f"localize: several photos are named {', '.join(twice)}; rename them or put them in "
+                          "one folder and give the folder")
+    folder = target / "photos"
+    folder.mkdir(parents=True, exist_ok=True)
+    for old in folder.iterdir():
+        if old.is_symlink() and old.name not in names:
+            old.unlink()
+    for path in items:
+        link = folder / path.name
+        if link.is_symlink() and link.resolve() == path.resolve():
+            continue
+        if link.is_symlink():
+            link.unlink()
+        link.symlink_to(path.resolve())
+    return folder
+
+
+def format_localize(result: dict) -> str:
+    """Per photo: placed (inliers, camera centre) or refused (the reason); then where the outputs are."""
+    width = max([len(p["name"]) for p in result["photos"]] + [4])
+    lines = []
+    for p in result["photos"]:
+        if p["placed"]:
+            centre = ", ".join(f"{v:.4g}" for v in p["centre"])
+            lines.append(f"placed   {p['name']:<{width}}  {p['inliers']} inliers of {p['matches']} matches   "
+                         f"centre ({centre})")
+        else:
+            lines.append(f"refused  {p['name']:<{width}}  {p['reason']}")
+    ws = Path(result["workspace"])
+    lines.append(f"recon: placed {result['placed']} of {result['total']} photo(s); poses in {ws / 'poses.json'}, "
+                 f"model with them in {ws / 'sparse' / '0'}")
+    return "\n".join(lines)

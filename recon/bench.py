@@ -98,7 +98,8 @@ def print_sparse(rows: list[dict]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m recon.bench")
-    parser.add_argument("--only", choices=["sparse", "lowlight", "mvs", "dense"], default=None)
+    parser.add_argument("--only", choices=["sparse", "lowlight", "mvs", "dense", "scale"], default=None,
+                        help="one section; without it every section but scale (300 views, ~30 min: make bench-scale)")
     parser.add_argument("--datasets", type=Path, default=recon.datasets_root())
     parser.add_argument("--out", type=Path, default=REPO / "bench_out")
     args = parser.parse_args(argv)
@@ -122,6 +123,10 @@ def main(argv: list[str] | None = None) -> int:
         mvs_bench.main(["--cache", str(args.out / "mvs")])
     if args.only in (None, "dense"):
         bench_dense(args.out / "dense")
+    if args.only == "scale":
+        from recon import scale_bench
+
+        scale_bench.main(["--out", str(args.out / "scale")])
     return 0
 
 

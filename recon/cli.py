@@ -70,6 +70,14 @@ def _parser() -> argparse.ArgumentParser:
     w.add_argument("workspace")
     w.add_argument("--port", type=int, default=8000, help="port on 127.0.0.1 (0 = any free port)")
 
+    lo = sub.add_parser("localize", help="place new photos in an existing reconstruction (poses.json + model)")
+    lo.add_argument("workspace", help="workspace of a finished reconstruction (its sparse/0 and database.db)")
+    lo.add_argument("photos", nargs="+", help="photo files, or one folder of photos")
+    lo.add_argument("--out", help="output workspace (default: WORKSPACE/localize)")
+    lo.add_argument("-o", "--override", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a config key, e.g. -o localize.min_inliers=20 (see `recon stages`)")
+    lo.add_argument("--json", action="store_true", help="print poses.json")
+
     g = sub.add_parser("config", help="config tools")
     gsub = g.add_subparsers(dest="config_command", required=True)
     show = gsub.add_parser("show", help="print the resolved config with every default and its doc")
@@ -147,6 +155,10 @@ def _dispatch(args) -> int:
         for name, section in cfg.stages.items():
             print(f"{name}:")
             print("\n".join(describe(section, 1)))
+        return 0
+    if args.command == "localize":
+        result = api.localize(args.workspace, args.photos, args.out, overrides=args.override)
+        print(json.dumps(result, indent=2) if args.json else api.format_localize(result))
         return 0
     raise AssertionError(args.command)
 

@@ -82,24 +82,26 @@ class StageContext:
             raise StageError(f"{self.name}: needs the output of stage '{stage}', which this run "
                              "does not include; add it to `stages`") from None
 
-    def map(self, fn: Callable, items: Iterable, *, desc: str,
-            done: Callable[[Any], bool] | None = None) -> list:
+    def map(self, fn: Callable, items: Iterable, *, desc: str, done: Callable[[Any], bool] | None = None,
+            size: Callable[[Any], int] | None = None) -> list:
         """Run ``fn(item)`` for each item through the executor, one task per item.
 
         Items for which ``done(item)`` is true were finished by an earlier, interrupted run and are
         skipped (their result is None): per-item resume. ``fn`` writes its own output atomically.
+        Progress counts items, or ``size(item)`` units per item (e.g. the pairs of a block of pairs).
         """
         items = list(items)
         todo = [i for i, item in enumerate(items) if done is None or not done(item)]
         results: list = [None] * len(items)
         if len(todo) < len(items):
             self.log.info("%s: %d of %d already done, resuming", desc, len(items) - len(todo), len(items))
-        progress = Progress(self.log, desc, len(todo))
+        size = size or (lambda item: 1)
+        progress = Progress(self.log, desc, sum(size(items[i]) for i in todo))
         if len(todo) <= 1 or self.executor.spec == "serial":
             try:
                 for i in todo:
                     results[i] = fn(items[i])
-                    progress.advance()
+                    progress.advance(size(items[i]))
             finally:
                 progress.close()
             return results
@@ -108,7 +110,7 @@ class StageContext:
         try:
             for future in _as_completed(futures):
                 results[futures[future]] = future.result()
-                progress.advance()
+                progress.advance(size(items[futures[future]]))
         except BaseException:
             progress.close()
             for future in futures:

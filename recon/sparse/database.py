@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import sqlite3
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -19,6 +20,55 @@ def camera_params(model: str, width: int, height: int, focal: float) -> list[flo
         "RADIAL": [focal, cx, cy, 0.0, 0.0],
         "OPENCV": [focal, focal, cx, cy, 0.0, 0.0, 0.0, 0.0],
     }[model]
+
+
+@contextlib.contextmanager
+def read_only(path: Path):
+    """A read-only SQLite connection to a finished COLMAP database. Readers use this, never
+    ``pycolmap.Database.open``, which writes to the file it opens (a cached stage output must not
+    change) and takes locks that concurrent workers would contend for. ``immutable``: COLMAP's
+    databases are in WAL mode, where even a read-only connection leaves -wal/-shm files behind."""
+    con = sqlite3.connect(f"{Path(path).resolve().as_uri()}?mode=ro&immutable=1", uri=True)
+    try:
+        yield con
+    finally:
+        con.close()
+
+
+def image_ids(con: sqlite3.Connection) -> dict[str, int]:
+    """Image name -> image id."""
+    return dict(con.execute("SELECT name, image_id FROM images"))
+
+
+def read_descriptors(con: sqlite3.Connection, image_id: int) -> np.ndarray:
+    """An image's SIFT descriptors (N x 128 uint8)."""
+    row = con.execute("SELECT rows, cols, data FROM descriptors WHERE image_id = ?", (image_id,)).fetchone()
+    if row is None or not row[0]:
+        return np.zeros((0, 128), np.uint8)
+    rows, cols, data = row
+    if cols != 128 or len(data) != rows * cols:
+        raise ValueError(f"image {image_id}: descriptors are not 128-byte SIFT ({rows} x {cols}, {len(data)} bytes)")
+    return np.frombuffer(data, dtype=np.uint8).reshape(rows, cols).copy()
+
+
+def read_keypoints(con: sqlite3.Connection, image_id: int) -> np.ndarray:
+    """An image's keypoints as stored (N x 6 float32: x, y, a11, a12, a21, a22; or N x 2/4)."""
+    row = con.execute("SELECT rows, cols, data FROM keypoints WHERE image_id = ?", (image_id,)).fetchone()
+    if row is None or not row[0]:
+        return np.zeros((0, 6), np.float32)
+    rows, cols, data = row
+    return np.frombuffer(data, dtype=np.float32).reshape(rows, cols).copy()
+
+
+def read_camera(con: sqlite3.Connection, image_id: int):
+    """The pycolmap camera of an image."""
+    import pycolmap
+
+    camera_id, model, width, height, params = con.execute(
+        "SELECT c.camera_id, c.model, c.width, c.height, c.params FROM cameras c JOIN images i "
+        "ON c.camera_id = i.camera_id WHERE i.image_id = ?", (image_id,)).fetchone()
+    return pycolmap.Camera(model=pycolmap.CameraModelId(model), width=width, height=height,
+                           params=np.frombuffer(params, dtype=np.float64).copy(), camera_id=camera_id)
 
 
 @contextlib.contextmanager
@@ -60,22 +110,3 @@ def write_database(path: Path, cameras: list[dict], images: list[dict],
             ids[name] = image_id
     tmp.replace(path)
     return ids
-
-
-def image_ids(path: Path) -> dict[str, int]:
-    with opened(path) as db:
-        return {img.name: img.image_id for img in db.read_all_images()}
-
-
-def verified_pairs(path: Path) -> dict[tuple[int, int], int]:
-    """Inlier match counts of every geometrically verified pair, keyed by (image_id1, image_id2)."""
-    import pycolmap
-
-    with opened(path) as db:
-        pair_ids, geometries = db.read_two_view_geometries()
-        counts = {}
-        for pair_id, geom in zip(pair_ids, geometries):
-            n = len(geom.inlier_matches)
-            if n:
-                counts[tuple(pycolmap.pair_id_to_image_pair(pair_id))] = n
-        return counts

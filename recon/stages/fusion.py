@@ -10,8 +10,9 @@ from recon.stage import Stage, StageContext, StageError, register
 
 @dataclass(frozen=True)
 class FusionConfig:
-    min_num_pixels: int = opt(3, "fewest views that must agree on a point", ge=1)
-    max_reproj_error: float = opt(2.0, "largest reprojection error between agreeing views (px)", gt=0)
+    min_num_pixels: int = opt(3, "fewest depth-map pixels (views) that must agree on a point", ge=1)
+    max_reproj_error: float = opt(1.0, "largest reprojection error between agreeing views (px); smaller merges "
+                                       "fewer pixels into each point: a denser cloud (COLMAP: 2)", gt=0)
     max_depth_error: float = opt(0.01, "largest relative depth difference between agreeing views", gt=0)
     max_normal_error: float = opt(10.0, "largest normal angle between agreeing views (degrees)", gt=0)
 

@@ -28,6 +28,7 @@ class IngestConfig:
     camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = opt(
         "SIMPLE_RADIAL", "COLMAP camera model fitted by bundle adjustment")
     default_focal_factor: float = opt(1.2, "focal = factor x max(width, height) when EXIF has none", gt=0)
+    min_photos: int = opt(2, "fewest readable photos the run needs (2 to reconstruct; localize takes 1)", ge=1)
     skip_unreadable: bool = opt(True, "skip corrupt/empty photos with a warning instead of stopping")
     keyframes: KeyframeOptions = opt(KeyframeOptions(), "video input: how keyframes are chosen")
 
@@ -93,11 +94,12 @@ class Ingest(Stage):
                     raise StageError(str(exc)) from None
                 ctx.log.warning("skipped: %s", exc)
                 bad.append(str(exc))
-        if len(infos) < 2:
+        if len(infos) < cfg.min_photos:
             if video is not None:
-                raise StageError(f"video: {video.name} gave {len(infos)} keyframe(s); reconstruction needs at "
-                                 "least 2: lower ingest.keyframes.min_parallax, or film more motion")
-            raise StageError(f"images: {folder} has {len(infos)} readable photo(s); reconstruction needs at least 2")
+                raise StageError(f"video: {video.name} gave {len(infos)} keyframe(s); the run needs at least "
+                                 f"{cfg.min_photos}: lower ingest.keyframes.min_parallax, or film more motion")
+            raise StageError(f"images: {folder} has {len(infos)} readable photo(s); the run needs at least "
+                             f"{cfg.min_photos} (ingest.min_photos)")
         copies = _place_photos(ctx.out / "images", infos) if video is None else 0  # keyframes are there
         cameras, image_camera = _group_cameras([i for _, i in infos], cfg)
         duplicates = _duplicates(ctx, [(p, i.name) for p, i in infos])

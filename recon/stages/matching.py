@@ -5,14 +5,16 @@ from __future__ import annotations
 import errno
 import os
 import shutil
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 from recon.options import opt
 from recon.sparse import pairs as pairing
-from recon.sparse.database import opened
-from recon.stage import Progress, Stage, StageContext, register
+from recon.sparse.database import image_ids, opened, read_descriptors, read_only
+from recon.sparse.matcher import Block, PairOptions, match_block, read_block
+from recon.stage import Stage, StageContext, register
 from recon.workspace import read_json
 
 
@@ -33,24 +35,14 @@ class MatchingConfig:
     max_error: float = opt(4.0, "RANSAC inlier threshold in pixels for geometric verification", gt=0)
     min_inliers: int = opt(15, "fewest inlier matches for a verified pair", ge=5)
     guided_matching: bool = opt(False, "re-match guided by the estimated two-view geometry (slower)")
-    chunk_pairs: int = opt(250, "pairs matched per chunk (progress and resume granularity)", ge=1,
+    chunk_pairs: int = opt(50, "most pairs per task: a block matched by one worker (the unit of resume)", ge=1,
                            affects_output=False)
 
 
-def _options(cfg: MatchingConfig, seed: int):
-    import pycolmap
-
-    mo = pycolmap.FeatureMatchingOptions()
-    mo.num_threads = -1
-    mo.guided_matching = cfg.guided_matching
-    mo.sift.max_ratio = cfg.max_ratio
-    mo.sift.max_distance = cfg.max_distance
-    mo.sift.cross_check = cfg.cross_check
-    vo = pycolmap.TwoViewGeometryOptions()
-    vo.min_num_inliers = cfg.min_inliers
-    vo.ransac.max_error = cfg.max_error
-    vo.ransac.random_seed = seed
-    return mo, vo
+def pair_options(cfg: MatchingConfig, seed: int, num_threads: int = 1) -> PairOptions:
+    return PairOptions(max_ratio=cfg.max_ratio, max_distance=cfg.max_distance, cross_check=cfg.cross_check,
+                       guided_matching=cfg.guided_matching, max_error=cfg.max_error, min_inliers=cfg.min_inliers,
+                       seed=seed, num_threads=num_threads)
 
 
 def choose_pairs(cfg: MatchingConfig, database: Path, names: list[str], seed: int,
@@ -65,7 +57,7 @@ def choose_pairs(cfg: MatchingConfig, database: Path, names: list[str], seed: in
         method = "sequential" if ordered else "exhaustive" if n <= cfg.exhaustive_max else "retrieval"
     if method == "exhaustive":
         return method, pairing.exhaustive_pairs(n)
-    similarity = _similarity(database, names, cfg.vocabulary_words, seed)
+    similarity = image_similarity(database, names, cfg.vocabulary_words, seed)
     if method == "retrieval":
         return method, pairing.retrieval_pairs(similarity, cfg.neighbors)
     found = set(pairing.sequential_pairs(n, cfg.overlap))
@@ -74,10 +66,11 @@ def choose_pairs(cfg: MatchingConfig, database: Path, names: list[str], seed: in
     return method, sorted(found)
 
 
-def _similarity(database: Path, names: list[str], words: int, seed: int):
-    with opened(database) as db:
-        by_name = {img.name: img.image_id for img in db.read_all_images()}
-        descs = [db.read_descriptors(by_name[name]).data for name in names]
+def image_similarity(database: Path, names: list[str], words: int, seed: int):
+    """Cosine similarity (n x n) of the photos' VLAD descriptors, over a vocabulary learned from them."""
+    with read_only(database) as db:
+        by_name = image_ids(db)
+        descs = [read_descriptors(db, by_name[name]) for name in names]
     g = pairing.global_descriptors(descs, words=words, seed=seed)
     return g @ g.T
 
@@ -85,7 +78,7 @@ def _similarity(database: Path, names: list[str], words: int, seed: int):
 @register
 class Matching(Stage):
     name = "matching"
-    version = 1
+    version = 2
     Config = MatchingConfig
     requires = ("features",)
     outputs = ("database.db", "pairs.txt")
@@ -94,81 +87,68 @@ class Matching(Stage):
     summary = "pair selection, SIFT matching and geometric verification into database.db"
 
     def run(self, ctx: StageContext, cfg: MatchingConfig) -> dict:
-
-        database = ctx.out / "database.db"
-        if database.exists():  # an interrupted run's database: COLMAP skips the pairs already in it
-            _set_names(database, _names_by_id(ctx.input("features") / "database.db"))  # aliases of a kill
-            with opened(database) as db:
-                ctx.log.info("matching: %d pairs already done, resuming", db.num_matched_image_pairs())
-        else:
-            tmp = ctx.out / ".database.db.copy"
-            shutil.copyfile(ctx.input("features") / "database.db", tmp)
-            tmp.replace(database)
-        names = _names(database)
+        features = ctx.input("features") / "database.db"
+        with read_only(features) as db:
+            ids = image_ids(db)
+        names = sorted(ids)
         listing = read_json(ctx.input("features") / "images.json") or {}
-        method, pairs = choose_pairs(cfg, database, names, ctx.seed, bool(listing.get("ordered")))
-        mo, vo = _options(cfg, ctx.seed)
-        _match_pairs(ctx, database, [(names[i], names[j]) for i, j in pairs], mo, vo, cfg.chunk_pairs)
+        method, pairs = choose_pairs(cfg, features, names, ctx.seed, bool(listing.get("ordered")))
+        named = [(names[i], names[j]) for i, j in pairs]
+        (ctx.out / "pairs.txt").write_text("".join(f"{a} {b}\n" for a, b in named))
+        id_pairs = [(ids[a], ids[b]) for a, b in named]
+        folder = ctx.out / "blocks"
+        done = {pair for path in sorted(folder.glob("*.pkl")) for pair in read_block(path)}
+        todo = [pair for pair in id_pairs if pair not in done]
+        if done:
+            ctx.log.info("matching: %d pairs already done, resuming", len(id_pairs) - len(todo))
+        ctx.map(match_block, _blocks(todo, features, folder, cfg, ctx), desc="matching pairs",
+                done=lambda b: Path(b.out).exists(), size=lambda b: len(b.pairs))
+        database = ctx.out / "database.db"
+        _write_database(features, folder, id_pairs, database)
         with opened(database) as db:
             matched = db.num_matched_image_pairs()
         verified = sum(1 for v in _inlier_counts(database) if v >= cfg.min_inliers)
+        shutil.rmtree(folder)
         ctx.log.info("matching: %s, %d pairs matched, %d verified", method, matched, verified)
         return {"method": method, "pairs": matched, "verified_pairs": verified}
 
 
-def _match_pairs(ctx: StageContext, database: Path, named: list[tuple[str, str]], mo, vo, chunk: int) -> None:
-    import pycolmap
-
-    (ctx.out / "pairs.txt").write_text("".join(f"{a} {b}\n" for a, b in named))
-    progress = Progress(ctx.log, "matching pairs", len(named))
-    names = _names_by_id(database)
-    # COLMAP reads a pair list as "name1 name2" lines split at spaces ('#' starts a comment): photos
-    # named so go by an alias while matching; no photo is named like it (ingest skips hidden paths)
-    alias = {name: f".recon-alias/{i}" if name.startswith("#") or any(c.isspace() for c in name) else name
-             for i, name in names.items()}
-    with opened(database) as db:
-        keypoints = {name: db.num_keypoints_for_image(i) for i, name in names.items()}
-    _set_names(database, {i: alias[name] for i, name in names.items()})
-    try:
-        for start in range(0, len(named), chunk):
-            part = named[start:start + chunk]
-            _check_space(ctx, database, part, keypoints)
-            listing = ctx.out / ".chunk.txt"
-            listing.write_text("".join(f"{alias[a]} {alias[b]}\n" for a, b in part))
-            po = pycolmap.ImportedPairingOptions()
-            po.match_list_path = str(listing)
-            # COLMAP skips pairs already in the database, so a resumed run continues where it stopped
-            pycolmap.match_image_pairs(str(database), mo, po, vo, device=pycolmap.Device.cpu)
-            progress.advance(len(part))
-    finally:
-        _set_names(database, names)
-    (ctx.out / ".chunk.txt").unlink(missing_ok=True)
+def _blocks(pairs: list[tuple[int, int]], features: Path, folder: Path, cfg: MatchingConfig,
+            ctx: StageContext) -> list[Block]:
+    """Tasks of at most ``cfg.chunk_pairs`` pairs, at least four per worker (so workers end together)."""
+    cores = len(os.sched_getaffinity(0))
+    workers = max(1, min(ctx.executor.workers, cores))
+    options = pair_options(cfg, ctx.seed, max(1, cores // workers))
+    chunk = max(1, min(cfg.chunk_pairs, -(-len(pairs) // (4 * workers))))
+    blocks = []
+    for start in range(0, len(pairs), chunk):
+        part = tuple(pairs[start:start + chunk])
+        tag = zlib.crc32(repr(part).encode())  # names differ for different pairs, whatever the chunk size
+        blocks.append(Block(str(features), part, options, str(folder / f"{start:07d}-{tag:08x}.pkl")))
+    return blocks
 
 
-def _check_space(ctx: StageContext, database: Path, part: list[tuple[str, str]], keypoints: dict[str, int]) -> None:
-    """Refuse to match ``part`` unless the disk can hold what COLMAP may write for it: on a full disk
-    COLMAP's matcher threads abort the whole process. Bound: raw and verified matches of 8 bytes,
-    at most the smaller keypoint count of a pair each, doubled for SQLite's journal, plus 4 MiB."""
-    need = 2 * sum(16 * min(keypoints[a], keypoints[b]) for a, b in part) + (4 << 20)
-    free = shutil.disk_usage(database.parent).free
-    if free < need:
-        ctx.log.warning("matching: the next %d pairs may need %.0f MB; %.1f MB are free", len(part),
-                        need / 1e6, free / 1e6)
+def _write_database(features: Path, folder: Path, pairs: list[tuple[int, int]], database: Path) -> None:
+    """The features database with the matches and geometries of ``pairs``, in that order, from the
+    block files in ``folder``; written by this process alone.
+
+    The disk is checked first: SQLite on a full disk is an error COLMAP does not recover from. Bound:
+    the blocks' size, twice (SQLite's journal), plus the database and 4 MiB."""
+    files = sorted(folder.glob("*.pkl"))
+    need = 2 * sum(f.stat().st_size for f in files) + features.stat().st_size + (4 << 20)
+    if shutil.disk_usage(database.parent).free < need:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(database.parent))
-
-
-def _names_by_id(database: Path) -> dict[int, str]:
-    with opened(database) as db:
-        return {img.image_id: img.name for img in db.read_all_images()}
-
-
-def _set_names(database: Path, names: dict[int, str]) -> None:
-    """Rename the database's images to ``names`` (image id -> name) where they differ."""
-    with opened(database) as db:
-        for image in db.read_all_images():
-            if image.name != names[image.image_id]:
-                image.name = names[image.image_id]
-                db.update_image(image)
+    results = {}
+    for path in files:
+        results.update(read_block(path))
+    tmp = database.with_name(".database.db.tmp")
+    shutil.copyfile(features, tmp)
+    with opened(tmp) as db:
+        for pair in pairs:
+            matches, geometry = results[pair]
+            db.write_matches(*pair, matches)
+            db.write_two_view_geometry(*pair, geometry)
+    tmp.replace(database)
 
 
 def _inlier_counts(database: Path) -> list[int]:
@@ -177,6 +157,3 @@ def _inlier_counts(database: Path) -> list[int]:
         return [len(g.inlier_matches) for g in geometries]
 
 
-def _names(database: Path) -> list[str]:
-    with opened(database) as db:
-        return sorted(img.name for img in db.read_all_images())

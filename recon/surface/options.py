@@ -15,7 +15,7 @@ class MeshOptions:
     method: Literal["poisson", "tsdf"] = opt("poisson", "poisson: screened Poisson on oriented fused points; tsdf: fuse depth maps")
     depth: int = opt(9, "Poisson octree depth (resolution = points' extent / 2^depth)", ge=5, le=13)
     point_weight: float = opt(4.0, "Poisson screening weight: higher follows the points more closely", ge=0.0)
-    density_quantile: float = opt(0.02, "drop Poisson vertices whose point density is below this quantile", ge=0.0, lt=1.0)
+    density_quantile: float = opt(0.05, "drop Poisson vertices whose point density is below this quantile", ge=0.0, lt=1.0)
     bbox_margin: float = opt(0.02, "trim Poisson faces outside the points' box grown by this fraction of its size", ge=0.0)
     trim_distance: float = opt(4.0, "drop faces farther than this many Poisson cells from any input point (0: off)", ge=0.0)
     voxel_size: float = opt(0.0, "TSDF voxel size in scene units (0: voxel_fraction x scene extent)", ge=0.0)

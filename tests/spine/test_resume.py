@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+import pickle
 import re
 import signal
-import sqlite3
 import subprocess
 import sys
 import time
@@ -44,13 +44,8 @@ def features_done(ws: Path) -> int:
 
 
 def matched_pairs(ws: Path) -> int:
-    for db in ws.glob(".recon/cache/matching/*.partial/database.db"):
-        try:
-            with sqlite3.connect(f"file:{db}?mode=ro", uri=True, timeout=0.1) as con:
-                return con.execute("SELECT COUNT(*) FROM two_view_geometries").fetchone()[0]
-        except sqlite3.Error:
-            return 0
-    return 0
+    """Pairs in the matching stage's finished blocks (each block file is written atomically)."""
+    return sum(len(pickle.loads(p.read_bytes())) for p in ws.glob(".recon/cache/matching/*.partial/blocks/*.pkl"))
 
 
 def poses(ws: Path) -> dict[str, np.ndarray]:
