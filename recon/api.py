@@ -131,12 +131,15 @@ def _load_gt(gt: str | Path) -> dict:
 
 def model_to_ground_truth(workspace: str | Path, gt: str | Path):
     """The similarity taking the model's world to the ground truth's (robust fit on camera centres)."""
+    gt_cams = _load_gt(gt)
+    return _alignment(_estimated_poses(Path(workspace), gt_cams), gt_cams, gt)
+
+
+def _alignment(est: dict, gt_cams: dict, gt: str | Path):
     import numpy as np
 
     from recon.geometry.transforms import align_similarity, camera_center
 
-    gt_cams = _load_gt(gt)
-    est = _estimated_poses(Path(workspace), gt_cams)
     if len(est) < 3:
         raise ConfigError(f"--gt {gt}: fewer than 3 images of the model have a ground-truth camera")
     names = sorted(est)
@@ -148,7 +151,8 @@ def model_to_ground_truth(workspace: str | Path, gt: str | Path):
 def evaluate(workspace: str | Path, gt: str | Path) -> dict:
     """Figures of a workspace against ground truth: poses of ``sparse/0`` against the ground-truth
     cameras; on a synthetic scene also accuracy/completeness of the fused cloud and the mesh, after
-    aligning the model to the ground truth by a robust similarity on the camera centres."""
+    aligning the model to the ground truth by a robust similarity on the camera centres; with depth
+    maps, the fused cloud's reprojection error into the ground-truth cameras."""
     from recon.eval.poses import pose_metrics
 
     ws = Path(workspace)
@@ -160,21 +164,22 @@ def evaluate(workspace: str | Path, gt: str | Path) -> dict:
     scene_file = Path(gt) / "gt" / "scene.json"
     surfaces = [(key, ws / rel) for key, rel in (("fused", "dense/fused.ply"), ("mesh", "mesh.ply"))
                 if (ws / rel).exists()]
-    if scene_file.exists() and surfaces and len(est) >= 3:
+    reprojection = (ws / "dense" / "fused.ply").exists() and (ws / "dense" / "stereo" / "depth_maps").is_dir()
+    sim = _alignment(est, gt_cams, gt) if len(est) >= 3 and (reprojection or scene_file.exists() and surfaces) else None
+    if scene_file.exists() and surfaces and sim is not None:
         import numpy as np
         import trimesh
 
         from recon.eval.surface import surface_metrics
         from recon.synth import load_scene
 
-        sim = model_to_ground_truth(ws, gt)
         scene = load_scene(Path(gt))
         for key, path in surfaces:
             geometry = trimesh.load(path, process=False)
             geometry.vertices = sim.apply(np.asarray(geometry.vertices))
             figures[key] = surface_metrics(geometry, scene)
-    if (ws / "dense" / "fused.ply").exists() and (ws / "dense" / "stereo" / "depth_maps").is_dir() and len(est) >= 3:
-        figures["fused_reprojection"] = _fused_reprojection(ws, gt_cams, model_to_ground_truth(ws, gt))
+    if reprojection and sim is not None:
+        figures["fused_reprojection"] = _fused_reprojection(ws, gt_cams, sim)
     return figures
 
 

@@ -71,6 +71,13 @@ def read_camera(con: sqlite3.Connection, image_id: int):
                            params=np.frombuffer(params, dtype=np.float64).copy(), camera_id=camera_id)
 
 
+def sift_descriptors(rows: np.ndarray):
+    """pycolmap's FeatureDescriptors of N x 128 uint8 SIFT descriptors."""
+    import pycolmap
+
+    return pycolmap.FeatureDescriptors(pycolmap.FeatureExtractorType.SIFT, rows)
+
+
 @contextlib.contextmanager
 def opened(path: Path):
     import pycolmap
@@ -105,8 +112,7 @@ def write_database(path: Path, cameras: list[dict], images: list[dict],
         for name, keypoints, descriptors in features:
             image_id = db.write_image(pycolmap.Image(name=name, camera_id=cam_ids[by_name[name]["camera"]]))
             db.write_keypoints(image_id, keypoints)
-            db.write_descriptors(image_id, pycolmap.FeatureDescriptors(
-                pycolmap.FeatureExtractorType.SIFT, descriptors))
+            db.write_descriptors(image_id, sift_descriptors(descriptors))
             ids[name] = image_id
     tmp.replace(path)
     return ids

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.sparse.database import read_camera, read_descriptors, read_keypoints, read_only
+from recon.sparse.database import read_camera, read_descriptors, read_keypoints, read_only, sift_descriptors
 from recon.sparse.sift_match import sift_matches
 from recon.workspace import write_bytes
 
@@ -78,6 +78,9 @@ def match_block(block: Block) -> str:
         cameras = {i: read_camera(db, i) for i in needed}
         keypoints = {i: read_keypoints(db, i) for i in needed}
         descriptors = {i: read_descriptors(db, i) for i in needed}
+    if o.guided_matching:  # COLMAP's own types, made once per image of the block
+        matcher = pycolmap.FeatureMatcher.create(mo, pycolmap.Device.cpu)
+        guided = {i: (_colmap_keypoints(keypoints[i]), sift_descriptors(descriptors[i])) for i in needed}
     results = []
     for a, b in block.pairs:
         matches = sift_matches(descriptors[a], descriptors[b], o.max_ratio, o.max_distance,
@@ -86,9 +89,7 @@ def match_block(block: Block) -> str:
             cameras[a], keypoints[a][:, :2].astype(np.float64), cameras[b],
             keypoints[b][:, :2].astype(np.float64), matches, vo)
         if o.guided_matching and geometry.config in guidable:
-            matcher = pycolmap.FeatureMatcher.create(mo, pycolmap.Device.cpu)
-            matcher.match_guided(o.max_error, _colmap_keypoints(keypoints[a]), _descriptors(descriptors[a]), cameras[a],
-                                 _colmap_keypoints(keypoints[b]), _descriptors(descriptors[b]), cameras[b], geometry)
+            matcher.match_guided(o.max_error, *guided[a], cameras[a], *guided[b], cameras[b], geometry)
         results.append((a, b, matches, geometry))
     write_bytes(Path(block.out), pickle.dumps(results, protocol=pickle.HIGHEST_PROTOCOL))
     return block.out
@@ -107,9 +108,3 @@ def _colmap_keypoints(rows: np.ndarray):
     for x, y, a11, a12, a21, a22 in rows.astype(float):
         keypoints.append(pycolmap.FeatureKeypoint(x=x, y=y, a11=a11, a12=a12, a21=a21, a22=a22))
     return keypoints
-
-
-def _descriptors(rows: np.ndarray):
-    import pycolmap
-
-    return pycolmap.FeatureDescriptors(pycolmap.FeatureExtractorType.SIFT, rows)

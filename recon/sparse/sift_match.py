@@ -30,10 +30,11 @@ def sift_matches(a: np.ndarray, b: np.ndarray, max_ratio: float = 0.8, max_dista
     col_best = np.zeros(len(b), np.int64)
     col_dots = np.full((len(b), 2), -np.inf, np.float32)
     for start in range(0, len(a), CHUNK):
-        dots = fa[start:start + CHUNK] @ fb.T
+        chunk = fa[start:start + CHUNK]
+        dots = chunk @ fb.T
         row_best[start:start + len(dots)], row_dots[start:start + len(dots)] = _top2(dots)
         if cross_check:  # b's side from its own product: reductions along rows are ~40x faster
-            best, top = _top2(fb @ fa[start:start + CHUNK].T)
+            best, top = _top2(fb @ chunk.T)
             better = top[:, 0] > col_dots[:, 0]
             second = np.maximum(np.minimum(top[:, 0], col_dots[:, 0]), np.maximum(top[:, 1], col_dots[:, 1]))
             col_best = np.where(better, best + start, col_best)

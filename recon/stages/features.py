@@ -51,7 +51,8 @@ class FeaturesConfig:
                             self.upright, self.darkness_adaptivity)
 
 
-def _extract_one(task: tuple[Path, Path, SiftSettings, Path | None]) -> int:
+def extract_one(task: tuple[Path, Path, SiftSettings, Path | None]) -> int:
+    """One photo's SIFT (source, destination .npz, settings, mask folder or None), in a worker; its count."""
     source, dest, settings, mask_dir = task
     quiet_colmap()  # a worker process: COLMAP's info lines would flood the terminal
     keypoints, descriptors = extract_sift(source, settings)
@@ -80,7 +81,7 @@ class Features(Stage):
         masks = preprocess / "masks"
         tasks = [(preprocess / "images" / img["name"], ctx.out / "features" / f"{img['name']}.npz", settings,
                   (masks / img["name"]).parent if img.get("masked") else None) for img in listing["images"]]
-        ctx.map(_extract_one, tasks, desc="features", done=lambda t: t[1].is_file())
+        ctx.map(extract_one, tasks, desc="features", done=lambda t: t[1].is_file())
         counts = []
 
         def features():

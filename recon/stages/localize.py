@@ -25,9 +25,9 @@ from recon.localize import (
     poses_json,
 )
 from recon.options import opt
-from recon.sparse.features import SiftSettings, extract_sift, load_features, save_features
+from recon.sparse.features import SiftSettings, load_features
 from recon.stage import Progress, Stage, StageContext, StageError, register
-from recon.stages.features import FeaturesConfig
+from recon.stages.features import FeaturesConfig, extract_one
 from recon.stages.ingest import input_path
 from recon.workspace import Workspace, read_json, write_json
 
@@ -77,16 +77,6 @@ def _sift_settings(ctx: StageContext, ref: _Reference) -> SiftSettings:
         return FeaturesConfig().settings()
 
 
-def _extract_one(task: tuple[Path, Path, SiftSettings]) -> int:
-    from recon.logs import quiet_colmap
-
-    source, dest, settings = task
-    quiet_colmap()  # a worker process: COLMAP's info lines would flood the terminal
-    keypoints, descriptors = extract_sift(source, settings)
-    save_features(dest, keypoints, descriptors)
-    return len(keypoints)
-
-
 def _photo_camera(image: dict, cameras: dict[int, dict]) -> PhotoCamera:
     """Ingest's record of a photo as a camera: its own EXIF focal, else its camera group's focal."""
     group = cameras[image["camera"]]
@@ -118,12 +108,12 @@ class Localize(Stage):
         ingest = ctx.input("ingest")
         listing = read_json(ingest / "images.json")
         images = listing["images"]
-        tasks = [(ingest / "images" / img["name"], ctx.out / "features" / f"{img['name']}.npz", settings)
+        tasks = [(ingest / "images" / img["name"], ctx.out / "features" / f"{img['name']}.npz", settings, None)
                  for img in images]
-        ctx.map(_extract_one, tasks, desc="features", done=lambda t: t[1].is_file())
+        ctx.map(extract_one, tasks, desc="features", done=lambda t: t[1].is_file())
         cameras = {c["id"]: c for c in listing["cameras"]}
         photos = [Photo(img["name"], _photo_camera(img, cameras), *load_features(npz))
-                  for img, (_, npz, _) in zip(images, tasks)]
+                  for img, (_, npz, _, _) in zip(images, tasks)]
         try:
             reference = load_reference(ref.model, ref.database)
         except ValueError as exc:
