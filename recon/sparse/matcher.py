@@ -101,10 +101,19 @@ def read_block(path: Path) -> dict[tuple[int, int], tuple]:
 
 
 def _colmap_keypoints(rows: np.ndarray):
-    """pycolmap FeatureKeypoints from the database's (x, y, a11, a12, a21, a22) rows."""
+    """pycolmap FeatureKeypoints from database rows: (x, y), (x, y, scale, orientation) or the affine
+    (x, y, a11, a12, a21, a22), as COLMAP stores them."""
     import pycolmap
 
+    rows = rows.astype(float)
+    if rows.shape[1] == 6:
+        affine = rows[:, 2:]
+    else:
+        scale = rows[:, 2] if rows.shape[1] == 4 else np.ones(len(rows))
+        angle = rows[:, 3] if rows.shape[1] == 4 else np.zeros(len(rows))
+        c, s = scale * np.cos(angle), scale * np.sin(angle)
+        affine = np.column_stack([c, -s, s, c])
     keypoints = pycolmap.FeatureKeypoints()
-    for x, y, a11, a12, a21, a22 in rows.astype(float):
+    for (x, y), (a11, a12, a21, a22) in zip(rows[:, :2], affine):
         keypoints.append(pycolmap.FeatureKeypoint(x=x, y=y, a11=a11, a12=a12, a21=a21, a22=a22))
     return keypoints
