@@ -2,7 +2,7 @@
 
 open3d's shared library links against ``libusb-1.0.so.0``, which minimal machines lack. The pip
 package ``libusb-package`` ships that library; loading it globally first lets ``import open3d``
-resolve the symbol without a system install (DESIGN.md, "Facts checked").
+resolve the symbol without a system install (docs/DECISIONS.md, "open3d without libusb").
 """
 
 from __future__ import annotations

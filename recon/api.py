@@ -38,7 +38,7 @@ def load(config: str | Path | dict | None, overrides: list[str] | dict | None = 
 
 def run(config: str | Path | dict | None = None, *, images: str | None = None, workspace: str | None = None,
         overrides: list[str] | dict | None = None, from_stage: str | None = None, until: str | None = None,
-        force: list[str] | tuple[str, ...] = (), **section_overrides: Any) -> pipeline.RunResult:
+        force: list[str] | tuple[str, ...] = (), verify: bool = False, **section_overrides: Any) -> pipeline.RunResult:
     """Run a pipeline. Keyword sections override config sections, e.g. ``features={"max_image_size": 1000}``."""
     merged: dict = dict(overrides) if isinstance(overrides, dict) else {}
     extra = list(overrides) if isinstance(overrides, list) else []
@@ -55,9 +55,9 @@ def run(config: str | Path | dict | None = None, *, images: str | None = None, w
     from recon.logs import quiet_colmap
 
     quiet_colmap(ws.meta / "logs" / "colmap.")
-    result = pipeline.run(cfg, from_stage=from_stage, until=until, force=force)
+    # written first, so that `recon status WS` can say where a killed run stopped
     write_json(ws.meta / "config.json", {"base": str(cfg.base), "config": cfg.as_dict()})
-    return result
+    return pipeline.run(cfg, from_stage=from_stage, until=until, force=force, verify=verify)
 
 
 def _yaml(value: Any) -> str:
@@ -81,8 +81,9 @@ def _config_for(target: str | Path | dict, overrides=None, images=None, workspac
     return load(path, overrides, images=images, workspace=workspace)
 
 
-def status(target: str | Path | dict, overrides=None, images=None, workspace=None) -> list[pipeline.StageStatus]:
-    return pipeline.status(_config_for(target, overrides, images, workspace))
+def status(target: str | Path | dict, overrides=None, images=None, workspace=None,
+           verify: bool = False) -> list[pipeline.StageStatus]:
+    return pipeline.status(_config_for(target, overrides, images, workspace), verify=verify)
 
 
 def clean(target: str | Path, everything: bool = False, workspace: str | None = None) -> tuple[int, int]:

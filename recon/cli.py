@@ -34,12 +34,16 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--until", metavar="STAGE", help="stop after STAGE")
     r.add_argument("--force", action="append", default=[], metavar="STAGE",
                    help="re-run STAGE and the stages after it even if cached")
+    r.add_argument("--verify", action="store_true",
+                   help="check every byte of cached outputs before reusing them (default: sizes, small files, "
+                        "and files whose modification time moved)")
 
     s = sub.add_parser("status", help="per stage: done, stale (and why) or missing")
     s.add_argument("target", help="a config file or a workspace folder")
     s.add_argument("-o", "--override", action="append", default=[], metavar="KEY=VALUE")
     s.add_argument("--images")
     s.add_argument("--workspace")
+    s.add_argument("--verify", action="store_true", help="check every byte of cached outputs")
 
     sub.add_parser("stages", help="list the stages, their inputs, outputs and options")
 
@@ -113,12 +117,13 @@ def main(argv: list[str] | None = None) -> int:
 def _dispatch(args) -> int:
     if args.command == "run":
         result = api.run(args.config, images=args.images, workspace=args.workspace, overrides=args.override,
-                         from_stage=args.from_stage, until=args.until, force=args.force)
+                         from_stage=args.from_stage, until=args.until, force=args.force, verify=args.verify)
         ran = ", ".join(result.ran) or "nothing (all cached)"
         print(f"recon: ran {ran}; workspace {result.workspace}")
         return 0
     if args.command == "status":
-        rows = api.status(args.target, overrides=args.override, images=args.images, workspace=args.workspace)
+        rows = api.status(args.target, overrides=args.override, images=args.images, workspace=args.workspace,
+                          verify=args.verify)
         width = max(len(r.name) for r in rows)
         for row in rows:
             print(f"{row.name:<{width}}  {row.state:<7}  {row.why}".rstrip())

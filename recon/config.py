@@ -6,12 +6,18 @@ A run config is one YAML file. Its top level holds the run's own keys (``images`
 unknown key is an error naming its full path and the closest valid key; a wrong type names the key
 and the expected type; numbers are checked against the field's bounds. Every field has a default,
 so an empty file is a valid config.
+
+Integers must also fit a C ``int``: options end up in COLMAP and OpenCV, whose bindings refuse
+anything wider with a stack of C++ signatures. A config whose aliases expand beyond
+:data:`MAX_EXPANDED` (a "billion laughs" file, or one that refers to itself) is refused before
+anything walks it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import difflib
+import re
 import types
 import typing
 from pathlib import Path
@@ -24,6 +30,15 @@ from recon.options import doc_of, opt
 
 class ConfigError(ValueError):
     """A config problem, worded for the user: it names the key or file and what to do."""
+
+
+#: the range of a C ``int``, which every integer option must fit
+INT_MIN, INT_MAX = -(2**31), 2**31 - 1
+#: the most a config may hold once its YAML aliases are expanded (characters of its scalars, plus
+#: one per value): far above any real config, far below what would exhaust memory
+MAX_EXPANDED = 1_000_000
+#: a number as YAML 1.2 writes it; YAML 1.1 (PyYAML) reads ``5e-3`` (no dot) as a string
+_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,7 +83,34 @@ def read_yaml(path: Path) -> dict:
         return {}
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a mapping of keys to values")
+    _check_expansion(data, str(path))
     return data
+
+
+def _check_expansion(data: Any, where: str) -> None:
+    if _too_big(data):
+        raise ConfigError(f"{where}: expands to more than {MAX_EXPANDED // 1_000_000} MB through YAML aliases "
+                          "(or an alias refers to itself); write it out without them")
+
+
+def _too_big(data: Any, budget: int = MAX_EXPANDED) -> bool:
+    """Whether ``data`` holds more than ``budget`` (scalar characters plus one per value), counting
+    a value each time an alias repeats it. Stops as soon as the budget is spent, so a structure
+    that is exponential (or cyclic) once expanded costs no more than ``budget`` steps."""
+    stack = [data]
+    while stack:
+        value = stack.pop()
+        budget -= 1
+        if isinstance(value, dict):
+            stack.extend(value.keys())
+            stack.extend(value.values())
+        elif isinstance(value, list):
+            stack.extend(value)
+        elif isinstance(value, (str, bytes)):
+            budget -= len(value)
+        if budget < 0:
+            return True
+    return False
 
 
 def apply_overrides(data: dict, overrides: list[str] | dict[str, Any]) -> dict:
@@ -97,6 +139,7 @@ def _split_override(text: str) -> tuple[str, Any]:
         value = yaml.safe_load(raw) if raw.strip() else None
     except yaml.YAMLError:
         value = raw
+    _check_expansion(value, f"override {key.strip()}")
     return key.strip(), value
 
 
@@ -168,9 +211,12 @@ def _check_value(tp: Any, value: Any, path: str, field: dataclasses.Field | None
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{path}: expected an integer, got {_kind(value)} {value!r}")
+        _check_int_range(value, path, field)
         _check_bounds(value, path, field)
         return value
     if tp is float:
+        if isinstance(value, str) and _FLOAT.fullmatch(value.strip()):
+            value = float(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{path}: expected a number, got {_kind(value)} {value!r}")
         _check_bounds(value, path, field)
@@ -182,6 +228,16 @@ def _check_value(tp: Any, value: Any, path: str, field: dataclasses.Field | None
     if tp is Any:
         return value
     raise TypeError(f"unsupported option type {tp!r} at {path}")
+
+
+def _check_int_range(value: int, path: str, field: dataclasses.Field | None) -> None:
+    """An integer must fit a C ``int`` (and the option's own bounds, named in the same message)."""
+    if INT_MIN <= value <= INT_MAX:
+        return
+    meta = field.metadata if field is not None else {}
+    low = max([INT_MIN, *(b + (k == "gt") for k in ("ge", "gt") if (b := meta.get(k)) is not None)])
+    high = min([INT_MAX, *(b - (k == "lt") for k in ("le", "lt") if (b := meta.get(k)) is not None)])
+    raise ConfigError(f"{path}: must be an integer from {int(low)} to {int(high)}; got {value}")
 
 
 def _check_bounds(value: float, path: str, field: dataclasses.Field | None) -> None:

@@ -1,7 +1,7 @@
 """Where per-image and per-pair work runs: a local process pool by default, a Dask cluster on request.
 
 Both are ``concurrent.futures.Executor``s (Dask's through ``Client.get_executor``), so stages submit
-work one way whatever runs it (DESIGN.md, "Parallel and distributed"). The executor is created
+work one way whatever runs it (docs/ARCHITECTURE.md, "Parallel and distributed"). The executor is created
 lazily: a run whose stages are all cached starts no worker.
 """
 

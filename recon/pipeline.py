@@ -3,7 +3,10 @@
 The cache key of a stage is the SHA-256 of canonical JSON holding its name and version, its config,
 the keys of the stages it reads from, the run's seed where the stage samples, and (ingest) the
 content hashes of the input files. A stage whose key is complete on disk is skipped; change one
-option and exactly that stage and the stages after it run again (DESIGN.md, "A stage").
+option and exactly that stage and the stages after it run again (docs/ARCHITECTURE.md, "The cache").
+A complete output is reused only after its files are checked against its manifest
+(:meth:`Workspace.verify`); a run never starts while a path it would publish holds a file of the
+user's (:meth:`Workspace.clashes`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from recon.config import ConfigError, RunOptions, apply_overrides, build, read_y
 from recon.executor import Executor, check_spec
 from recon.logs import native_stderr_to
 from recon.options import output_options
-from recon.stage import REGISTRY, StageContext, StageError
+from recon.stage import REGISTRY, StageContext, StageError, resolve_path
 from recon.workspace import HashCache, Workspace, WorkspaceError
 
 log = logging.getLogger("recon")
@@ -42,17 +45,17 @@ class RunConfig:
 
     @property
     def images(self) -> Path | None:
-        return (self.base / self.run.images).resolve() if self.run.images else None
+        return resolve_path(self.base, self.run.images) if self.run.images else None
 
     @property
     def video(self) -> Path | None:
-        return (self.base / self.run.video).resolve() if self.run.video else None
+        return resolve_path(self.base, self.run.video) if self.run.video else None
 
     @property
     def workspace(self) -> Path:
         if not self.run.workspace:
             raise ConfigError("workspace: no workspace given; set `workspace:` in the config or pass --workspace")
-        return (self.base / self.run.workspace).resolve()
+        return resolve_path(self.base, self.run.workspace)
 
     def as_dict(self) -> dict:
         data = to_dict(self.run)
@@ -123,8 +126,7 @@ def plan(cfg: RunConfig, ws: Workspace) -> Plan:
     for name in order:
         stage = REGISTRY[name]
         probe = StageContext(name=name, out=Path(), workspace=ws, images=cfg.images, seed=cfg.run.seed,
-                             executor=None,  # type: ignore[arg-type]
-                             config={"hashes": hashes, "base": cfg.base, "video": cfg.video})
+                             executor=None, base=cfg.base, hashes=hashes, video=cfg.video)
         mat = {
             "stage": name,
             "version": stage.version,
@@ -154,22 +156,24 @@ class RunResult:
 
 
 def run(cfg: RunConfig, *, from_stage: str | None = None, until: str | None = None,
-        force: list[str] | tuple[str, ...] = ()) -> RunResult:
-    """Run the pipeline: skip what is cached, run the rest in order, publish outputs."""
+        force: list[str] | tuple[str, ...] = (), verify: bool = False) -> RunResult:
+    """Run the pipeline: skip what is cached (after checking its files; every byte with ``verify``),
+    run the rest in order, publish outputs."""
     ws = Workspace(cfg.workspace)
     for name in [from_stage, until, *force]:
         if name is not None and name not in REGISTRY:
             raise ConfigError(f"unknown stage '{name}'; stages are {', '.join(REGISTRY)}")
     with ws.locked():
         _setup_log_file(ws)
-        p = plan(cfg, ws)
-        order = p.order
+        order = selected_stages(cfg)
         if until is not None:
             if until not in order:
                 raise ConfigError(f"--until {until}: stage is not part of this run ({', '.join(order)})")
             order = order[: order.index(until) + 1]
         if from_stage is not None and from_stage not in order:
             raise ConfigError(f"--from {from_stage}: stage is not part of this run ({', '.join(order)})")
+        keep = _check_clashes(cfg, ws, order)
+        p = plan(cfg, ws)
         before = set(order[: order.index(from_stage)]) if from_stage else set()
         forced: set[str] = set()
         for name in force:
@@ -182,18 +186,22 @@ def run(cfg: RunConfig, *, from_stage: str | None = None, until: str | None = No
             for name in order:
                 key = p.keys[name]
                 if ws.is_complete(name, key) and name not in forced:
-                    outputs[name] = ws.output_dir(name, key)
-                    result.cached.append(name)
-                    _publish(ws, name, outputs[name])
-                    ws.set_state(name, key)
-                    log.debug("%s: cached (%s)", name, key[:16])
-                    continue
+                    damage = ws.verify(name, key, full=verify)
+                    if damage is None:
+                        outputs[name] = ws.output_dir(name, key)
+                        result.cached.append(name)
+                        _publish(ws, name, outputs[name], keep)
+                        ws.set_state(name, key)
+                        log.debug("%s: cached (%s)", name, key[:16])
+                        continue
+                    log.warning("%s: cached output is damaged (%s); running it again", name, damage)
                 if name in before:
                     raise ConfigError(f"--from {from_stage}: stage '{name}' before it has no complete "
                                       "output for this config; run without --from first")
                 try:
                     _unpublish_downstream(ws, name)
-                    outputs[name] = _run_stage(cfg, ws, name, key, p.material[name], outputs, executor, result)
+                    outputs[name] = _run_stage(cfg, ws, name, key, p.material[name], outputs, executor, result,
+                                               keep)
                 except (ConfigError, StageError):
                     raise
                 except Exception as exc:
@@ -211,13 +219,13 @@ def run(cfg: RunConfig, *, from_stage: str | None = None, until: str | None = No
 
 
 def _run_stage(cfg: RunConfig, ws: Workspace, name: str, key: str, material: dict,
-               outputs: dict[str, Path], executor: Executor, result: RunResult) -> Path:
+               outputs: dict[str, Path], executor: Executor, result: RunResult, keep: set[str]) -> Path:
     stage = REGISTRY[name]
     out = ws.begin(name, key)
     ctx = StageContext(name=name, out=out, workspace=ws, images=cfg.images, seed=cfg.run.seed,
-                       executor=executor,
+                       executor=executor, base=cfg.base, hashes=HashCache(ws), video=cfg.video,
                        upstream={d: outputs[d] for d in (*stage.requires, *stage.optional) if d in outputs},
-                       config={"run": cfg.run, "stages": cfg.stages, "base": cfg.base, "video": cfg.video})
+                       settings=cfg.as_dict())
     log.info("%s: running", name)
     start = time.time()
     with native_stderr_to(ws.meta / "logs" / "native.log"):
@@ -239,7 +247,7 @@ def _run_stage(cfg: RunConfig, ws: Workspace, name: str, key: str, material: dic
     }
     final = ws.commit(name, key, manifest)
     ws.set_state(name, key)
-    _publish(ws, name, final)
+    _publish(ws, name, final, keep)
     log.info("%s: done in %.1f s%s", name, seconds, _summary_text(summary))
     result.ran.append(name)
     result.seconds[name] = seconds
@@ -273,15 +281,30 @@ def _unpublish_downstream(ws: Workspace, name: str) -> None:
     for stage_name, stage in REGISTRY.items():
         if affected & {*stage.requires, *stage.optional}:
             affected.add(stage_name)
-            for link in stage.publish.values():
-                path = ws.root / link
-                if stage_name != name and path.is_symlink():
-                    path.unlink()
+            if stage_name != name:
+                for link in stage.publish.values():
+                    ws.unpublish(link)
 
 
-def _publish(ws: Workspace, name: str, out: Path) -> None:
+def _check_clashes(cfg: RunConfig, ws: Workspace, order: list[str]) -> set[str]:
+    """Stop before any work if a path this run would publish holds something recon did not make.
+    Returns the links not to publish: the photo folder itself (COLMAP's layout: photos in
+    ``proj/images``, workspace ``proj``), which already shows what that link would."""
+    links = [link for name in order for link in REGISTRY[name].publish.values()]
+    keep = [p for p in (cfg.images,) if p is not None]
+    clash, kept = ws.clashes(links, keep)
+    if clash:
+        more = f" (and {len(clash) - 1} more: {', '.join(p.name for p in clash[1:])})" if len(clash) > 1 else ""
+        raise WorkspaceError(f"{clash[0]} exists and recon did not make it{more}; recon never replaces files "
+                             "it did not write: choose another --workspace, or move it out of the workspace")
+    for path in kept:
+        log.info("%s is the photo folder: left as it is (no link published there)", path)
+    return {path.relative_to(ws.root).as_posix() for path in kept}
+
+
+def _publish(ws: Workspace, name: str, out: Path, keep: set[str]) -> None:
     for rel, link in REGISTRY[name].publish.items():
-        if (out / rel).exists():
+        if (out / rel).exists() and link not in keep:
             ws.publish(out / rel, link)
 
 
@@ -328,8 +351,8 @@ class StageStatus:
     key: str = ""
 
 
-def status(cfg: RunConfig) -> list[StageStatus]:
-    """Per stage: done, stale (and why), or missing, for this config."""
+def status(cfg: RunConfig, verify: bool = False) -> list[StageStatus]:
+    """Per stage: done, stale (and why: an option, an input, or a damaged output), or missing."""
     ws = Workspace(cfg.workspace)
     if not ws.meta.is_dir():
         return [StageStatus(n, "missing", "no workspace yet") for n in selected_stages(cfg)]
@@ -339,7 +362,8 @@ def status(cfg: RunConfig) -> list[StageStatus]:
     for name in p.order:
         key = p.keys[name]
         if ws.is_complete(name, key):
-            rows.append(StageStatus(name, "done", "", key))
+            damage = ws.verify(name, key, full=verify)
+            rows.append(StageStatus(name, "stale", damage, key) if damage else StageStatus(name, "done", "", key))
             continue
         previous = ws.manifest(name, state[name]) if name in state else None
         if previous is None:
@@ -401,7 +425,5 @@ def clean(cfg: RunConfig | None, workspace: Path, everything: bool = False) -> t
             (ws.meta / "state.json").unlink(missing_ok=True)
             for stage in REGISTRY.values():
                 for link in stage.publish.values():
-                    path = ws.root / link
-                    if path.is_symlink():
-                        path.unlink()
+                    ws.unpublish(link)
         return removed, freed

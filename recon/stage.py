@@ -4,12 +4,13 @@ A stage is a small class with a ``name``, a ``version`` (bump it when its output
 the same inputs), a ``Config`` dataclass (every field declared with :func:`recon.options.opt`), the
 stages it ``requires`` (whose outputs it reads), the ``outputs`` it writes, the workspace paths it
 ``publish``-es, and ``run(ctx, cfg)``, which reads its inputs through ``ctx`` and writes only into
-``ctx.out``. The pipeline decides whether it runs, from its cache key (DESIGN.md, "A stage").
+``ctx.out``. The pipeline decides whether it runs, from its cache key (docs/ARCHITECTURE.md, "Stages").
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -18,7 +19,7 @@ from typing import Any, ClassVar
 
 from recon.executor import Executor
 from recon.progress import Bar, bars_enabled
-from recon.workspace import Workspace
+from recon.workspace import HashCache, Workspace
 
 
 class StageError(RuntimeError):
@@ -57,22 +58,40 @@ def register(cls: type[Stage]) -> type[Stage]:
     return cls
 
 
+def resolve_path(base: Path, value: str | os.PathLike) -> Path:
+    """A path from a config: ``~`` and ``$VARS`` expanded, relative to ``base`` (the config's folder)."""
+    return (Path(base) / os.path.expandvars(os.path.expanduser(os.fspath(value)))).resolve()
+
+
 @dataclass
 class StageContext:
-    """What a running stage sees: its output folder, its inputs, the executor, a logger."""
+    """What a stage sees. While the cache key is computed (:meth:`Stage.fingerprint`) ``out`` is not
+    yet made and ``executor`` is None; while it runs, ``out`` is its temporary output folder."""
 
     name: str
     out: Path
     workspace: Workspace
     images: Path | None
     seed: int
-    executor: Executor
+    executor: Executor | None
+    base: Path  # the folder that relative config paths are resolved against
+    hashes: HashCache
+    video: Path | None = None
     upstream: dict[str, Path] = field(default_factory=dict)
-    config: dict[str, Any] = field(default_factory=dict)
+    #: the whole run's resolved config as plain data (what the report shows)
+    settings: dict[str, Any] = field(default_factory=dict)
 
     @property
     def log(self) -> logging.Logger:
         return logging.getLogger(f"recon.{self.name}")
+
+    def resolve(self, value: str | os.PathLike) -> Path:
+        """A path option of the config as an absolute path (see :func:`resolve_path`)."""
+        return resolve_path(self.base, value)
+
+    def digest(self, path: Path) -> str:
+        """The content hash of an input file (remembered across runs)."""
+        return self.hashes.digest(path)
 
     def input(self, stage: str) -> Path:
         """The completed output folder of an upstream stage."""

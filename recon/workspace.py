@@ -1,19 +1,28 @@
 """The workspace: owns every path on disk, atomic writes, the run lock and the stage cache.
 
-Layout (DESIGN.md, "Workspace on disk")::
+Layout (docs/ARCHITECTURE.md, "The workspace")::
 
     <workspace>/
       database.db, sparse/0/, points.ply, transforms.json, dense/, ...   user-facing, COLMAP-readable
       .recon/
         lock                      held (flock) by the running `recon run`; holds its pid
         state.json                the key each stage last completed with
-        hashes.json               content hashes of input files, keyed by (path, size, mtime)
+        hashes.json               content hashes of input files, keyed by (path, inode, size, mtime, ctime)
         recon.log                 the full log of every run
         cache/<stage>/<key>/      a completed stage output, with manifest.json
         cache/<stage>/<key>.partial/   an output being written (kept across kills: per-item resume)
 
 User-facing paths are relative symbolic links into the cache, so a file the user opens is always
 the output of the stage's current key, and COLMAP, MeshLab or Blender read them in place.
+
+Whose files are whose (docs/ARCHITECTURE.md, "The workspace"): recon's own paths are `.recon/` and
+the links it published, which all point into `.recon/cache/`; a link into our own cache is made by
+no one else, so that is the test (:meth:`Workspace.owns`). Anything else in the workspace is the
+user's and is never replaced or deleted: :meth:`Workspace.clashes` finds it before any work starts.
+
+A completed output's manifest records the size, mtime and SHA-256 of each of its files
+(:func:`file_table`); :meth:`Workspace.verify` checks them before the output is reused, so a
+truncated database or a deleted model file makes the stage stale instead of feeding later stages.
 """
 
 from __future__ import annotations
@@ -25,6 +34,7 @@ import hashlib
 import json
 import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -95,6 +105,15 @@ class Workspace:
     def is_complete(self, stage: str, key: str) -> bool:
         return (self.output_dir(stage, key) / MANIFEST).is_file()
 
+    def verify(self, stage: str, key: str, full: bool = False) -> str | None:
+        """Why the complete output of ``stage`` cannot be reused (a file deleted or changed since it was
+        written), or None when it can. Sizes are always checked; contents where cheap (small files),
+        where the modification time moved, or everywhere with ``full``."""
+        manifest = self.manifest(stage, key)
+        if manifest is None:
+            return "output missing"
+        return verify_files(self.output_dir(stage, key), manifest.get("files"), full)
+
     def manifest(self, stage: str, key: str) -> dict | None:
         path = self.output_dir(stage, key) / MANIFEST
         return read_json(path) if path.is_file() else None
@@ -116,9 +135,9 @@ class Workspace:
         return partial
 
     def commit(self, stage: str, key: str, manifest: dict) -> Path:
-        """Write the manifest and atomically move the finished output into place."""
+        """Record the output's files in the manifest, write it, and atomically move the output into place."""
         partial = self.partial_dir(stage, key)
-        write_json(partial / MANIFEST, manifest)
+        write_json(partial / MANIFEST, {**manifest, "files": file_table(partial)})
         final = self.output_dir(stage, key)
         if final.exists():  # a --force re-run replaces the previous complete output
             trash = final.with_name(final.name + f".old-{os.getpid()}")
@@ -138,21 +157,63 @@ class Workspace:
         write_json(self.meta / "state.json", state)
 
     # -- user-facing links ---------------------------------------------------------------
+    def owns(self, path: Path) -> bool:
+        """Whether recon made ``path``: a link into this workspace's cache, or anything in ``.recon/``."""
+        path = Path(path)
+        if _is_under(path, self.meta):
+            return True
+        try:
+            target = os.readlink(path)
+        except OSError:  # absent, or not a link
+            return False
+        return _is_under(Path(os.path.normpath(path.parent / target)), self.meta / "cache")
+
+    def clashes(self, links: list[str], keep: list[Path]) -> tuple[list[Path], list[Path]]:
+        """Of the workspace paths ``links`` that outputs would be published at: those holding something
+        recon did not make (never to be replaced), and those that are, or hold, one of the folders
+        ``keep`` (the photo folder: its link is not needed, the photos are there)."""
+        clash, kept = [], []
+        real_keep = [Path(os.path.realpath(k)) for k in keep]
+        for link in dict.fromkeys(links):
+            dest = self.root / link
+            real = Path(os.path.realpath(dest))
+            if any(k == real or _is_under(k, real) for k in real_keep):
+                kept.append(dest)
+                continue
+            folders = [self.root / p for p in reversed(Path(link).parents) if p != Path(".")]
+            blocker = next((p for p in folders if os.path.lexists(p) and not p.is_dir()), None)
+            if blocker is None and os.path.lexists(dest) and not self.owns(dest):
+                blocker = dest
+            if blocker is not None:
+                clash.append(blocker)
+        return clash, kept
+
     def publish(self, target: Path, link: str) -> None:
-        """Point ``<workspace>/<link>`` at ``target`` with a relative symlink (atomic replace)."""
+        """Point ``<workspace>/<link>`` at ``target`` with a relative symlink (atomic replace). Only a link
+        recon made is ever replaced; a path of the user's there raises WorkspaceError (the pipeline
+        checks :meth:`clashes` before any work, so this is the last guard, not the message users see)."""
         dest = self.root / link
+        if os.path.lexists(dest) and not self.owns(dest):
+            raise WorkspaceError(f"{dest}: exists and recon did not make it; recon never replaces it: "
+                                 "move it away or choose another --workspace")
         dest.parent.mkdir(parents=True, exist_ok=True)
-        if dest.exists() and not dest.is_symlink():
-            if dest.is_dir():
-                shutil.rmtree(dest)
-            else:
-                dest.unlink()
         rel = os.path.relpath(target, dest.parent)
         tmp = dest.with_name(f".{dest.name}.link-{os.getpid()}")
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
         os.symlink(rel, tmp)
         os.replace(tmp, dest)
+
+    def unpublish(self, link: str) -> None:
+        """Remove the link ``<workspace>/<link>`` if recon made it; anything else there is left alone."""
+        dest = self.root / link
+        if dest.is_symlink() and self.owns(dest):
+            dest.unlink()
+
+
+def _is_under(path: Path, folder: Path) -> bool:
+    """Whether ``path`` is ``folder`` or inside it (lexically: links are not followed)."""
+    return Path(os.path.abspath(path)).is_relative_to(os.path.abspath(folder))
 
 
 # -----------------------------------------------------------------------------------------
@@ -190,12 +251,6 @@ def read_json(path: Path) -> Any:
         return None
 
 
-def atomic_path(path: Path) -> Path:
-    """A temp sibling of ``path`` to write to, then ``os.replace`` onto ``path``."""
-    path = Path(path)
-    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
-
-
 def _fsync_dir(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:
@@ -212,8 +267,53 @@ def file_digest(path: Path) -> str:
     return h.hexdigest()
 
 
+#: files up to this size are hashed whenever a cached output is checked; larger ones when their
+#: modification time moved (or with --verify)
+SMALL_FILE = 1 << 20
+
+
+def file_table(folder: Path) -> dict[str, list]:
+    """Every file under ``folder`` (but the manifest): ``[size, mtime_ns, sha256]`` for a regular
+    file, ``["link", target]`` for a symbolic link (never followed: ingest links the user's photos)."""
+    table: dict[str, list] = {}
+    for path in sorted(folder.rglob("*")):
+        rel = path.relative_to(folder).as_posix()
+        if rel == MANIFEST:
+            continue
+        st = path.lstat()
+        if stat.S_ISLNK(st.st_mode):
+            table[rel] = ["link", os.readlink(path)]
+        elif stat.S_ISREG(st.st_mode):
+            table[rel] = [st.st_size, st.st_mtime_ns, file_digest(path)]
+    return table
+
+
+def verify_files(folder: Path, table: dict[str, list] | None, full: bool = False) -> str | None:
+    """The first way the files under ``folder`` differ from ``table`` (:func:`file_table`), or None."""
+    if table is None:  # written before outputs recorded their files: nothing to check against
+        return None
+    for rel, entry in table.items():
+        path = folder / rel
+        try:
+            st = path.lstat()
+        except OSError:
+            return f"{rel} was deleted since it was written"
+        if entry[0] == "link":
+            if not stat.S_ISLNK(st.st_mode) or os.readlink(path) != entry[1]:
+                return f"{rel} changed since it was written"
+            continue
+        size, mtime_ns, digest = entry
+        if not stat.S_ISREG(st.st_mode) or st.st_size != size:
+            return f"{rel} changed since it was written (size {size} -> {st.st_size} bytes)"
+        if (full or size <= SMALL_FILE or st.st_mtime_ns != mtime_ns) and file_digest(path) != digest:
+            return f"{rel} changed since it was written (content)"
+    return None
+
+
 class HashCache:
-    """Content hashes of input files, recomputed only when a file's size or mtime changes."""
+    """Content hashes of input files. A hash is remembered under the file's (inode, size, mtime_ns,
+    ctime_ns): writing a file (even restoring its mtime afterwards) moves its ctime, and replacing
+    it changes its inode, so a photo swapped for another of the same size and mtime is re-read."""
 
     def __init__(self, workspace: Workspace):
         self.path = workspace.meta / "hashes.json"
@@ -223,11 +323,12 @@ class HashCache:
     def digest(self, path: Path) -> str:
         st = path.stat()
         key = str(path.absolute())
+        stamp = [st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns]
         cached = self.table.get(key)
-        if cached and cached[0] == st.st_size and cached[1] == st.st_mtime_ns:
-            return cached[2]
+        if cached and cached[:-1] == stamp:
+            return cached[-1]
         digest = file_digest(path)
-        self.table[key] = [st.st_size, st.st_mtime_ns, digest]
+        self.table[key] = [*stamp, digest]
         self.dirty = True
         return digest
 

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.sparse.database import private_copy
+
 log = logging.getLogger(__name__)
 
 
@@ -101,17 +103,18 @@ def read_matches(database: Path) -> Matches:
     """Photos, their sizes and keypoint counts, and the verified inlier count of every pair."""
     import pycolmap
 
-    db = pycolmap.Database.open(str(database))
-    try:
-        cameras = {c.camera_id: c for c in db.read_all_cameras()}
-        images = sorted(db.read_all_images(), key=lambda im: im.name)
-        names = [im.name for im in images]
-        index = {im.image_id: k for k, im in enumerate(images)}
-        sizes = {im.name: (cameras[im.camera_id].width, cameras[im.camera_id].height) for im in images}
-        keypoints = {im.name: db.num_keypoints_for_image(im.image_id) for im in images}
-        pair_ids, inliers = db.read_two_view_geometry_num_inliers()
-    finally:
-        db.close()
+    with private_copy(database) as copy:
+        db = pycolmap.Database.open(str(copy))
+        try:
+            cameras = {c.camera_id: c for c in db.read_all_cameras()}
+            images = sorted(db.read_all_images(), key=lambda im: im.name)
+            names = [im.name for im in images]
+            index = {im.image_id: k for k, im in enumerate(images)}
+            sizes = {im.name: (cameras[im.camera_id].width, cameras[im.camera_id].height) for im in images}
+            keypoints = {im.name: db.num_keypoints_for_image(im.image_id) for im in images}
+            pair_ids, inliers = db.read_two_view_geometry_num_inliers()
+        finally:
+            db.close()
     pairs = np.zeros((len(names), len(names)), dtype=np.int64)
     for pair_id, n in zip(pair_ids, inliers):
         a, b = pycolmap.pair_id_to_image_pair(pair_id)

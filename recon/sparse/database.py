@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import shutil
 import sqlite3
+import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -33,6 +35,17 @@ def read_only(path: Path):
         yield con
     finally:
         con.close()
+
+
+@contextlib.contextmanager
+def private_copy(path: Path):
+    """A temporary copy of a finished COLMAP database, for the pycolmap calls that open it read-write
+    (``Database.open`` and the mappers write to the file they open even when they only read: found
+    by the cache's content check, a cached ``database.db`` changed when sfm ran)."""
+    with tempfile.TemporaryDirectory(prefix="recon-db-") as scratch:
+        copy = Path(scratch) / Path(path).name
+        shutil.copyfile(path, copy)
+        yield copy
 
 
 def image_ids(con: sqlite3.Connection) -> dict[str, int]:

@@ -6,7 +6,7 @@ import logging
 import tempfile
 from pathlib import Path
 
-from recon.sparse.database import image_ids, read_only
+from recon.sparse.database import image_ids, private_copy, read_only
 
 log = logging.getLogger(__name__)
 
@@ -16,7 +16,7 @@ def reconstruct(database: Path, images: Path, cfg, seed: int) -> list:
     import pycolmap
 
     pycolmap.set_random_seed(seed)
-    with tempfile.TemporaryDirectory(prefix="recon-sfm-") as scratch:
+    with tempfile.TemporaryDirectory(prefix="recon-sfm-") as scratch, private_copy(database) as database:
         if cfg.mapper == "global":
             opts = pycolmap.GlobalPipelineOptions()
             opts.min_num_matches = cfg.min_num_matches

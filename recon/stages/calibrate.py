@@ -20,7 +20,6 @@ from recon.imaging.intrinsics import Intrinsics
 from recon.options import opt
 from recon.sparse.photos import PhotoError, inspect_photo, list_photos, read_upright
 from recon.stage import Stage, StageContext, StageError, register
-from recon.stages.ingest import input_path
 from recon.workspace import read_json, write_json
 
 
@@ -41,7 +40,7 @@ class CalibrateConfig:
 def _folder(ctx: StageContext, cfg: CalibrateConfig) -> Path | None:
     if cfg.images is None:
         return None
-    folder = input_path(ctx, cfg.images)
+    folder = ctx.resolve(cfg.images)
     if not folder.is_dir():
         raise StageError(f"calibrate.images: {folder} is not a folder; give the folder of board photos")
     return folder
@@ -59,14 +58,13 @@ class Calibrate(Stage):
         folder = _folder(ctx, cfg)
         if folder is None:
             return None
-        hashes = ctx.config["hashes"]
-        return [[p.relative_to(folder).as_posix(), hashes.digest(p)] for p in list_photos(folder)[0]]
+        return [[p.relative_to(folder).as_posix(), ctx.digest(p)] for p in list_photos(folder).photos]
 
     def run(self, ctx: StageContext, cfg: CalibrateConfig) -> dict:
         folder = _folder(ctx, cfg)
         if folder is None:
             return {"calibrated": False}
-        photos = list_photos(folder)[0]
+        photos = list_photos(folder).photos
         images = []
         for path in photos:
             try:

@@ -16,9 +16,9 @@ from typing import Literal
 
 from recon.imaging.video import KeyframeOptions, extract_keyframes
 from recon.options import opt
-from recon.sparse.photos import PhotoError, inspect_photo, list_photos, normalized_copy
+from recon.sparse.photos import Listing, PhotoError, inspect_photo, list_photos, normalized_copy
 from recon.stage import Stage, StageContext, StageError, register
-from recon.workspace import HashCache, write_json
+from recon.workspace import write_json
 
 
 @dataclass(frozen=True)
@@ -33,13 +33,8 @@ class IngestConfig:
     keyframes: KeyframeOptions = opt(KeyframeOptions(), "video input: how keyframes are chosen")
 
 
-def input_path(ctx: StageContext, value: str) -> Path:
-    """A path from the config, relative to the config file's folder."""
-    return (Path(ctx.config["base"]) / value).resolve()
-
-
 def _video(ctx: StageContext) -> Path | None:
-    video = ctx.config.get("video")
+    video = ctx.video
     if video is not None and not Path(video).is_file():
         raise StageError(f"video: {video} is not a file; give the path of the video to take frames from")
     return video
@@ -54,6 +49,25 @@ def _images_folder(ctx: StageContext):
     return ctx.images
 
 
+def _listing(ctx: StageContext, folder: Path) -> Listing:
+    """The photo folder's listing without the workspace's own files: when the workspace is the photo
+    folder, the links recon published there; when it lies inside it, the whole workspace."""
+    ws, real = ctx.workspace, Path(os.path.realpath(ctx.workspace.root))
+    inside = real != folder and real.is_relative_to(folder)
+    return list_photos(folder, exclude=lambda p: ws.owns(p) or (inside and p.is_relative_to(real)))
+
+
+def _fingerprint(ctx: StageContext, folder: Path) -> list[list[str]]:
+    """(name, content hash) of each photo; one that cannot be read is left out (ingest skips it too)."""
+    rows = []
+    for path in _listing(ctx, folder).photos:
+        try:
+            rows.append([path.relative_to(folder).as_posix(), ctx.digest(path)])
+        except OSError:
+            continue
+    return rows
+
+
 @register
 class Ingest(Stage):
     name = "ingest"
@@ -66,11 +80,8 @@ class Ingest(Stage):
     def fingerprint(self, ctx: StageContext, cfg: IngestConfig):
         video = _video(ctx)
         if video is not None:
-            return [[video.name, ctx.config["hashes"].digest(video)]]
-        folder = _images_folder(ctx)
-        photos, _ = list_photos(folder)
-        hashes = ctx.config["hashes"]
-        return [[p.relative_to(folder).as_posix(), hashes.digest(p)] for p in photos]
+            return [[video.name, ctx.digest(video)]]
+        return _fingerprint(ctx, _images_folder(ctx))
 
     def run(self, ctx: StageContext, cfg: IngestConfig) -> dict:
         video = _video(ctx)
@@ -79,13 +90,16 @@ class Ingest(Stage):
             extract_keyframes(video, folder, cfg.keyframes)
         else:
             folder = _images_folder(ctx)
-        photos, others = list_photos(folder)
+        listing = _listing(ctx, folder)
+        photos, others = listing.photos, listing.others
+        for path, why in listing.unreadable:
+            ctx.log.warning("skipped: %s: %s", path, why)
         if others:
             shown = ", ".join(p.name for p in others[:5]) + (" ..." if len(others) > 5 else "")
             ctx.log.warning("skipped %d files that are not JPEG/PNG/TIFF photos: %s", len(others), shown)
         if not photos:
             raise StageError(f"images: {folder} holds no JPEG, PNG or TIFF photos")
-        infos, bad = [], []
+        infos, bad = [], [f"{path}: {why}" for path, why in listing.unreadable]
         for path in photos:
             try:
                 infos.append((path, inspect_photo(path, path.relative_to(folder).as_posix())))
@@ -174,8 +188,7 @@ def _group_cameras(infos, cfg: IngestConfig) -> tuple[list[dict], dict[str, int]
 
 
 def _duplicates(ctx: StageContext, named) -> list[list[str]]:
-    hashes = HashCache(ctx.workspace)  # filled when the cache key was computed
     by_digest: dict[str, list[str]] = defaultdict(list)
-    for path, name in named:
-        by_digest[hashes.digest(path)].append(name)
+    for path, name in named:  # hashes remembered when the cache key was computed
+        by_digest[ctx.digest(path)].append(name)
     return [names for names in by_digest.values() if len(names) > 1]

@@ -28,7 +28,6 @@ from recon.options import opt
 from recon.sparse.features import SiftSettings, load_features
 from recon.stage import Progress, Stage, StageContext, StageError, register
 from recon.stages.features import FeaturesConfig, extract_one
-from recon.stages.ingest import input_path
 from recon.workspace import Workspace, read_json, write_json
 
 
@@ -49,7 +48,7 @@ def _reference(ctx: StageContext, cfg: LocalizeConfig) -> _Reference:
     if not cfg.model:
         raise StageError("localize.model: no reference given; set it to the workspace of a finished "
                          "reconstruction (e.g. one made by `recon run pipelines/sparse.yaml`)")
-    root = input_path(ctx, cfg.model)
+    root = ctx.resolve(cfg.model)
     ref = _Reference(root, root / "sparse" / "0", root / "database.db")
     missing = [p.relative_to(root).as_posix() for p in (ref.model / "images.bin", ref.database) if not p.is_file()]
     if missing:
@@ -98,9 +97,8 @@ class Localize(Stage):
 
     def fingerprint(self, ctx: StageContext, cfg: LocalizeConfig):
         ref = _reference(ctx, cfg)
-        hashes = ctx.config["hashes"]
         files = [*sorted(ref.model.glob("*.bin")), ref.database]
-        return [[f.relative_to(ref.root).as_posix(), hashes.digest(f)] for f in files]
+        return [[f.relative_to(ref.root).as_posix(), ctx.digest(f)] for f in files]
 
     def run(self, ctx: StageContext, cfg: LocalizeConfig) -> dict:
         ref = _reference(ctx, cfg)

@@ -41,7 +41,6 @@ from recon.sparse.database import camera_params
 from recon.sparse.photos import read_upright
 from recon.stage import Stage, StageContext, StageError, register
 from recon.stages.calibrate import calibrated_camera
-from recon.stages.ingest import input_path
 from recon.workspace import read_json, write_json
 
 
@@ -134,8 +133,7 @@ class Preprocess(Stage):
         folder = _mask_folder(ctx, cfg)
         if folder is None:
             return None
-        hashes = ctx.config["hashes"]
-        return [[p.relative_to(folder).as_posix(), hashes.digest(p)] for p in sorted(folder.rglob("*.png"))]
+        return [[p.relative_to(folder).as_posix(), ctx.digest(p)] for p in sorted(folder.rglob("*.png"))]
 
     def run(self, ctx: StageContext, cfg: PreprocessConfig) -> dict:
         ingest = ctx.input("ingest")
@@ -178,7 +176,7 @@ class Preprocess(Stage):
 def _mask_folder(ctx: StageContext, cfg: PreprocessConfig) -> Path | None:
     if cfg.mask_dir is None:
         return None
-    folder = input_path(ctx, cfg.mask_dir)
+    folder = ctx.resolve(cfg.mask_dir)
     if not folder.is_dir():
         raise StageError(f"preprocess.mask_dir: {folder} is not a folder; give the folder that holds "
                          "<image name>.png masks")

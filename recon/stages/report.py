@@ -7,7 +7,6 @@ output built on an older sparse model is left out).
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,7 +56,7 @@ class Report(Stage):
             models_json=ctx.input("sfm") / "models.json",
             stages=[m for m in (ws.manifest(n, k) for n, k in _current_stages(ws) if n != self.name) if m],
             run_started=lock.stat().st_mtime if lock.exists() else None,
-            config=_config_dict(ctx),
+            config=ctx.settings,
             **optional)
         evaluation = _evaluate(ctx, cfg) if cfg.gt else None
         limits = Limits(max_points=cfg.max_points, max_mesh_faces=cfg.max_mesh_faces,
@@ -97,24 +96,12 @@ def _current_optional(ws) -> list[tuple[str, str, tuple[str, Path]]]:
     return found
 
 
-def _config_dict(ctx: StageContext) -> dict:
-    from recon.config import to_dict
-
-    run = ctx.config.get("run")
-    stages = ctx.config.get("stages", {})
-    data = to_dict(run) if run is not None else {}
-    data.update({name: to_dict(section) for name, section in stages.items()})
-    return data
-
-
 def _evaluate(ctx: StageContext, cfg: ReportConfig) -> dict:
     from recon import api
     from recon.config import ConfigError
     from recon.workspace import WorkspaceError
 
-    gt = Path(cfg.gt)
-    if not gt.is_absolute():
-        gt = Path(ctx.config.get("base") or os.getcwd()) / gt
+    gt = ctx.resolve(cfg.gt)
     try:
         return api.evaluate(ctx.workspace.root, gt)
     except (ConfigError, WorkspaceError, FileNotFoundError, ValueError) as exc:

@@ -25,7 +25,6 @@ import numpy as np
 
 from recon.options import opt
 from recon.stage import Stage, StageContext, StageError, register
-from recon.stages.ingest import input_path
 from recon.stereo.calibration import StereoCalibration
 from recon.stereo.options import StereoOptions
 from recon.workspace import read_json, write_json
@@ -60,7 +59,7 @@ class _Pair:
 def _calibration_file(ctx: StageContext, cfg: StereoConfig) -> Path | None:
     if cfg.calibration is None:
         return None
-    path = input_path(ctx, cfg.calibration)
+    path = ctx.resolve(cfg.calibration)
     if not path.is_file():
         raise StageError(f"stereo.calibration: {path} is not a file; give the stereo calibration file "
                          "(format: see pipelines/stereo.yaml)")
@@ -87,7 +86,7 @@ class Stereo(Stage):
 
     def fingerprint(self, ctx: StageContext, cfg: StereoConfig):
         path = _calibration_file(ctx, cfg)
-        return None if path is None else [path.name, ctx.config["hashes"].digest(path)]
+        return None if path is None else [path.name, ctx.digest(path)]
 
     def run(self, ctx: StageContext, cfg: StereoConfig) -> dict:
         from recon.stereo.calibration import write_calibration

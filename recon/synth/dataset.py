@@ -11,6 +11,15 @@ Layout of ``out_dir``::
     gt/mesh.ply                      the whole scene surface in world coordinates
     gt/scene.json                    parameters, bounding box, extent (written last: marks completion)
 
+and for the zoo's scenes (recon.synth.zoo) that have them::
+
+    masks/<image name>.png           the masked object's pixels (255) in each regular view (COLMAP's
+    holdout/masks/<image name>.png   mask naming, as ``preprocess.mask_dir`` reads them), and its
+    gt/object.ply                    surface alone
+    gt/transient/<stem>.png          where a transient object (in some photos only, not part of the
+                                     ground truth) covers the photo; depth and normals show the
+                                     static scene behind it
+
 ``extent`` is the diagonal of the axis-aligned bounding box of the surface seen by the regular
 views, i.e. of all points back-projected from their ground-truth depth maps (the parts of the ground
 square no regular view sees do not count; hold-out views do not count). Accuracy thresholds such
@@ -28,6 +37,7 @@ import dataclasses
 import json
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -35,9 +45,11 @@ from PIL import ExifTags, Image, TiffImagePlugin
 
 from recon.eval.groundtruth import Camera, load_cameras, write_cameras
 from recon.geometry.transforms import backproject
+from recon.imaging.masks import save_mask
 from recon.synth.cameras import scene_cameras
-from recon.synth.render import Renderer
-from recon.synth.scene import build_scene
+from recon.synth.render import SKY, Background, Renderer
+from recon.synth.scene import Scene, assemble, build_scene
+from recon.synth.shapes import Part
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +76,9 @@ class SceneInfo:
     extent: float
     image_names: tuple[str, ...]
     holdout_names: tuple[str, ...]
+    name: str = ""  # the zoo scene's name; "" for the seeded scene of render_scene
+    masked: bool = False  # masks of an object are shipped (masks/, holdout/masks/, gt/object.ply)
+    transient_names: tuple[str, ...] = ()  # regular views that show the transient object
 
     @property
     def images_dir(self) -> Path:
@@ -101,6 +116,22 @@ class SceneInfo:
     def scene_json(self) -> Path:
         return self.gt_dir / "scene.json"
 
+    @property
+    def masks_dir(self) -> Path:
+        return self.root / "masks"
+
+    @property
+    def holdout_masks_dir(self) -> Path:
+        return self.root / "holdout" / "masks"
+
+    @property
+    def object_mesh_path(self) -> Path:
+        return self.gt_dir / "object.ply"
+
+    @property
+    def transient_dir(self) -> Path:
+        return self.gt_dir / "transient"
+
     def cameras(self, holdout: bool = False) -> dict[str, Camera]:
         """Ground-truth cameras of the regular (or hold-out) views, keyed by image name."""
         return load_cameras(self.holdout_cameras_path if holdout else self.cameras_path)
@@ -121,22 +152,63 @@ def render_scene(out_dir: str | Path, views: int = 24, width: int = 640, height:
     ``gt/scene.json`` is written last, so its presence means the scene is complete."""
     if image_format not in FORMATS:
         raise ValueError(f"image_format must be one of {FORMATS}, got {image_format!r}")
+    regular, held = scene_cameras(views, width, height, seed, path, holdout, image_format)
+    return write_scene(out_dir, build_scene(seed), regular, held, seed=seed, path=path, image_format=image_format)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Capture:
+    """How a scene's photos are taken, beyond a clean render in front of the default sky.
+
+    ``develop(rgb, index)``: what the camera does to regular view ``index``'s rendered image (exposure,
+    noise, blur...; hold-out views stay clean: they are the reference the textures are scored on).
+    ``transient``: parts standing in the regular views ``transient_views`` only; they are no part of
+    the ground truth (mesh, depth, normals, hold-out views). ``masked``: names of the parts that
+    make the masked object."""
+
+    background: Background = dataclasses.field(default_factory=lambda: SKY)
+    develop: Callable[[np.ndarray, int], np.ndarray] | None = None
+    jpeg_quality: int = JPEG_QUALITY
+    transient: tuple[Part, ...] = ()
+    transient_views: frozenset[int] = frozenset()
+    masked: frozenset[str] = frozenset()
+
+
+def write_scene(out_dir: str | Path, scene: Scene, regular: dict[str, Camera], held: dict[str, Camera], *,
+                seed: int, path: str, image_format: str = "jpg", name: str = "",
+                capture: Capture = Capture()) -> SceneInfo:
+    """Render ``scene`` into the cameras ``regular`` and ``held`` (hold-out) and write the layout of the
+    module doc into ``out_dir``; ``seed``, ``path`` and ``name`` are recorded in ``gt/scene.json``."""
     start = time.perf_counter()
     out = Path(out_dir)
-    regular, held = scene_cameras(views, width, height, seed, path, holdout, image_format)
-    renderer = Renderer(build_scene(seed))
+    renderer = Renderer(scene, capture.background)
+    with_transient = Renderer(assemble([*scene.parts, *capture.transient]), capture.background) \
+        if capture.transient and capture.transient_views else None
+    masked_ids = [i for i, p in enumerate(scene.parts) if p.name in capture.masked]
     gt = out / "gt"
     _remove_previous(out)
     for folder in (out / "images", gt / "depth", gt / "normal", *([out / "holdout" / "images"] if held else [])):
         folder.mkdir(parents=True, exist_ok=True)
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
-    for cams, img_dir in ((regular, out / "images"), (held, out / "holdout" / "images")):
-        for name, cam in cams.items():
+    transient_names = []
+    for cams, root in ((regular, out), (held, out / "holdout")):
+        for index, (image_name, cam) in enumerate(cams.items()):
             rgb, depth, normal = renderer.render(cam)
-            _write_image(img_dir / name, rgb, cam, image_format)
-            np.save(gt / "depth" / f"{Path(name).stem}.npy", depth)
-            np.save(gt / "normal" / f"{Path(name).stem}.npy", normal)
+            stem = Path(image_name).stem
+            if cams is regular and with_transient is not None and index in capture.transient_views:
+                rgb = with_transient.render(cam)[0]
+                cover = with_transient.part_ids(cam) >= len(scene.parts)
+                save_mask(gt / "transient", stem, cover)
+                transient_names.append(image_name)
+            if cams is regular and capture.develop is not None:
+                rgb = capture.develop(rgb, index)
+            quality = capture.jpeg_quality if cams is regular else JPEG_QUALITY
+            _write_image(root / "images" / image_name, rgb, cam, image_format, quality)
+            np.save(gt / "depth" / f"{stem}.npy", depth)
+            np.save(gt / "normal" / f"{stem}.npy", normal)
+            if masked_ids:
+                save_mask(root / "masks", image_name, np.isin(renderer.part_ids(cam), masked_ids))
             if cams is regular:
                 pts = _backproject(depth, cam)
                 if len(pts):
@@ -144,19 +216,23 @@ def render_scene(out_dir: str | Path, views: int = 24, width: int = 640, height:
     write_cameras(gt / "cameras.json", regular)
     if held:
         write_cameras(gt / "holdout_cameras.json", held)
-    scene = renderer.scene
     _write_mesh(gt / "mesh.ply", scene.vertices, scene.faces, scene.normals)
+    if masked_ids:
+        obj = np.isin(scene.face_part, masked_ids)
+        used, faces = np.unique(scene.faces[obj], return_inverse=True)
+        _write_mesh(gt / "object.ply", scene.vertices[used], faces.reshape(-1, 3), scene.normals[used])
     bmin, bmax = scene.bbox
-    info = SceneInfo(out, seed, views, holdout, width, height, path, image_format,
+    first = next(iter(regular.values()))
+    info = SceneInfo(out, seed, len(regular), len(held), first.width, first.height, path, image_format,
                      tuple(float(v) for v in bmin), tuple(float(v) for v in bmax),
                      float(np.linalg.norm(hi - lo)) if np.isfinite(lo).all() else 0.0,
-                     tuple(regular), tuple(held))
+                     tuple(regular), tuple(held), name, bool(masked_ids), tuple(transient_names))
     meta = {k: v for k, v in dataclasses.asdict(info).items() if k != "root"}
     meta["extent_definition"] = ("diagonal of the axis-aligned bounding box of the surface points "
                                  "back-projected from the regular views' ground-truth depth maps")
     (gt / "scene.json").write_text(json.dumps(meta, indent=1))
-    log.info("rendered %d+%d views %dx%d of seed %d in %.2f s", views, holdout, width, height, seed,
-             time.perf_counter() - start)
+    log.info("rendered %s: %d+%d views %dx%d, seed %d, in %.2f s", name or "the seeded scene", len(regular),
+             len(held), first.width, first.height, seed, time.perf_counter() - start)
     return info
 
 
@@ -169,8 +245,9 @@ def load_scene(path: str | Path) -> SceneInfo:
     meta = json.loads(meta_path.read_text())
     fields = {f.name for f in dataclasses.fields(SceneInfo)}
     kw = {k: v for k, v in meta.items() if k in fields}
-    for k in ("bbox_min", "bbox_max", "image_names", "holdout_names"):
-        kw[k] = tuple(kw[k])
+    for k in ("bbox_min", "bbox_max", "image_names", "holdout_names", "transient_names"):
+        if k in kw:
+            kw[k] = tuple(kw[k])
     return SceneInfo(root=meta_path.parent.parent, **kw)
 
 
@@ -179,7 +256,8 @@ def _remove_previous(out: Path) -> None:
     must not look complete), so a render with fewer views leaves no stale images behind."""
     patterns = ("gt/scene.json", "gt/cameras.json", "gt/holdout_cameras.json", "gt/mesh.ply", "gt/depth/*.npy",
                 "gt/normal/*.npy", "images/view_*.jpg", "images/view_*.png", "holdout/images/holdout_*.jpg",
-                "holdout/images/holdout_*.png")
+                "holdout/images/holdout_*.png", "gt/object.ply", "gt/transient/*.png", "masks/view_*.png",
+                "holdout/masks/holdout_*.png")
     for pattern in patterns:
         for f in out.glob(pattern):
             f.unlink()
@@ -192,7 +270,7 @@ def _backproject(depth: np.ndarray, cam: Camera) -> np.ndarray:
     return backproject(cam.K, cam.R, cam.t, np.column_stack([u + 0.5, v + 0.5]), z)
 
 
-def _write_image(path: Path, rgb: np.ndarray, cam: Camera, image_format: str) -> None:
+def _write_image(path: Path, rgb: np.ndarray, cam: Camera, image_format: str, quality: int = JPEG_QUALITY) -> None:
     img = Image.fromarray(rgb)
     if image_format == "png":
         img.save(path, format="PNG")
@@ -213,7 +291,7 @@ def _write_image(path: Path, rgb: np.ndarray, cam: Camera, image_format: str) ->
     sub[ExifTags.Base.FocalPlaneResolutionUnit] = 3  # centimetres
     sub[ExifTags.Base.ExifImageWidth] = cam.width
     sub[ExifTags.Base.ExifImageHeight] = cam.height
-    img.save(path, format="JPEG", quality=JPEG_QUALITY, exif=exif)
+    img.save(path, format="JPEG", quality=quality, exif=exif)
 
 
 def _write_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> None:

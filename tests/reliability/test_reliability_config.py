@@ -190,3 +190,71 @@ def test_unknown_keys_are_errors_naming_the_key(data):
     full = f"{where}.{key}" if where else str(key)
     assert str(info.value).startswith(f"{full}: unknown key; "), str(info.value)
     assert "\n" not in str(info.value)
+
+
+# ---------------------------------------------------------------------------------------------
+# Values the YAML reader or a C library would mishandle (issue 13)
+
+
+@pytest.mark.parametrize(("override", "says"), [
+    ("seed=99999999999999999999", "seed: must be an integer from 0 to 2147483647; got 99999999999999999999"),
+    ("seed=2147483648", "seed: must be an integer from 0 to 2147483647; got 2147483648"),
+    ("features.max_image_size=-99999999999", "features.max_image_size: must be an integer from 1 to 2147483647"),
+    ("mvs.seed=4294967296", "mvs.seed: must be an integer from 0 to 2147483647"),
+])
+def test_integers_beyond_a_c_int_are_refused_naming_the_key_and_range(override, says):
+    with pytest.raises(ConfigError) as info:
+        load_config({}, [override])
+    assert str(info.value).startswith(says) and "\n" not in str(info.value)
+
+
+def test_the_largest_c_int_seed_is_accepted_and_reaches_colmap():
+    """The bound is what pycolmap's RANSAC seed takes: the largest accepted value works there."""
+    import pycolmap
+
+    seed = load_config({}, ["seed=2147483647"]).run.seed
+    pycolmap.RANSACOptions().random_seed = seed
+    with pytest.raises(TypeError):
+        pycolmap.RANSACOptions().random_seed = seed + 1
+
+
+def test_exponent_without_a_dot_is_a_number_in_files_and_overrides(tmp_path):
+    """YAML 1.1 reads ``5e-3`` as a string; for a number option it is the number."""
+    (tmp_path / "c.yaml").write_text("matching:\n  max_error: 5e-1\nfusion:\n  max_depth_error: 5E-3\n")
+    cfg = load_config(tmp_path / "c.yaml")
+    assert cfg.stages["matching"].max_error == 0.5 and cfg.stages["fusion"].max_depth_error == 0.005
+    assert load_config({}, ["matching.max_error=5e-3"]).stages["matching"].max_error == 0.005
+    assert load_config({}, ["matching.max_error=+2.5e+1"]).stages["matching"].max_error == 25.0
+    for bad in ("matching.max_error=5e", "matching.max_error=nan", "features.max_image_size=1e3"):
+        with pytest.raises(ConfigError, match=r"^(matching\.max_error: expected a number|"
+                                              r"features\.max_image_size: expected an integer)"):
+            load_config({}, [bad])
+
+
+def billion_laughs(levels: int = 9) -> str:
+    """A YAML file of a few hundred bytes that expands to 10**levels strings."""
+    lines = ["a0: &a0 [lol, lol, lol, lol, lol, lol, lol, lol, lol, lol]"]
+    lines += [f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]" for i in range(1, levels)]
+    return "\n".join([*lines, f"features: {{upright: *a{levels - 1}}}", ""])
+
+
+@pytest.mark.parametrize("text", [billion_laughs(), "stages: &loop [*loop]\n"])
+def test_alias_bomb_is_refused_naming_the_file(tmp_path, text):
+    path = tmp_path / "bomb.yaml"
+    path.write_text(text)
+    assert len(text) < 1000
+    with pytest.raises(ConfigError) as info:
+        load_config(path, ["seed=1"])  # an override copies the whole config: the old blow-up
+    assert str(info.value) == (f"{path}: expands to more than 1 MB through YAML aliases (or an alias refers "
+                               "to itself); write it out without them")
+
+
+def test_alias_bomb_in_an_override_is_refused():
+    with pytest.raises(ConfigError, match=r"^override stages: expands to more than 1 MB"):
+        load_config({}, ["stages=&a [*a, *a, *a]"])
+
+
+def test_aliases_within_the_bound_still_work(tmp_path):
+    (tmp_path / "c.yaml").write_text("features: {max_image_size: &size 1200}\nundistort: {max_image_size: *size}\n")
+    cfg = load_config(tmp_path / "c.yaml")
+    assert cfg.stages["features"].max_image_size == cfg.stages["undistort"].max_image_size == 1200
