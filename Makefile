@@ -3,7 +3,7 @@ VENV ?= .venv
 PYTHON ?= python3
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: install demo test test-slow bench bench-scale lint clean
+.PHONY: install demo test test-slow bench bench-scale bench-quality lint clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +27,9 @@ bench: install
 
 bench-scale: install
 	$(VENV)/bin/python -m recon.bench --only scale
+
+bench-quality: install
+	$(VENV)/bin/python -m recon.bench --only quality
 
 lint: install
 	$(VENV)/bin/ruff check recon tests

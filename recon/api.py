@@ -13,13 +13,13 @@ from typing import Any
 
 from recon import pipeline
 from recon.config import ConfigError
-from recon.workspace import CACHE_DIR, Workspace, WorkspaceError, read_json, write_json
+from recon.files import read_json, write_json
+from recon.workspace import CACHE_DIR, Workspace, WorkspaceError
 
 log = logging.getLogger("recon")
-_last_log: list[Path] = []
 
-REPO = Path(__file__).resolve().parents[1]
-DEMO_CONFIG = REPO / "pipelines" / "demo.yaml"
+#: the ready configs ship inside the package (``pipelines/`` in a checkout links to them)
+DEMO_CONFIG = Path(__file__).resolve().parent / "pipelines" / "demo.yaml"
 
 
 def load(config: str | Path | dict | None, overrides: list[str] | dict | None = None, *,
@@ -51,7 +51,6 @@ def run(config: str | Path | dict | None = None, *, images: str | None = None, w
                workspace=workspace)
     ws = Workspace(cfg.workspace)
     ws.create()
-    _last_log[:] = [ws.meta / "recon.log"]
     from recon.logs import quiet_colmap
 
     quiet_colmap(ws.meta / "logs" / "colmap.")
@@ -95,165 +94,46 @@ def clean(target: str | Path, everything: bool = False, workspace: str | None = 
     return pipeline.clean(cfg, cfg.workspace, everything)
 
 
-def last_log_file() -> Path | None:
-    return _last_log[0] if _last_log else None
-
-
 # ---------------------------------------------------------------------------------------------
 # Evaluation, synthetic scenes, demo
 
 
-def _estimated_poses(ws: Path, gt_cams: dict) -> dict:
-    """World-to-camera (R, t) of ``<ws>/sparse/0``'s registered images, keyed by their ground-truth names."""
-    import pycolmap
-
-    model = ws / "sparse" / "0"
-    if not (model / "images.bin").exists() and not (model / "images.txt").exists():
-        raise WorkspaceError(f"{ws}: no sparse model at sparse/0; run the pipeline first")
-    rec = pycolmap.Reconstruction(str(model))
-    by_base = {Path(n).name: n for n in gt_cams}
-    est = {}
-    for image in rec.images.values():
-        key = by_base.get(Path(image.name).name)
-        if image.has_pose and key is not None:
-            pose = image.cam_from_world()
-            est[key] = (pose.rotation.matrix(), pose.translation)
-    return est
-
-
-def _load_gt(gt: str | Path) -> dict:
-    from recon.eval.groundtruth import load_cameras
+def evaluate(workspace: str | Path, gt: str | Path) -> dict:
+    """Figures of a workspace against ground truth (:func:`recon.eval.workspace.evaluate`)."""
+    from recon.eval.workspace import EvaluationError
+    from recon.eval.workspace import evaluate as evaluate_workspace
 
     try:
-        return load_cameras(Path(gt))
-    except (FileNotFoundError, ValueError) as exc:
-        raise ConfigError(f"--gt {gt}: {exc}") from None
+        return evaluate_workspace(Path(workspace), Path(gt))
+    except EvaluationError as exc:
+        raise ConfigError(f"--gt {exc}" if str(exc).startswith(str(gt)) else str(exc)) from None
 
 
 def model_to_ground_truth(workspace: str | Path, gt: str | Path):
     """The similarity taking the model's world to the ground truth's (robust fit on camera centres)."""
-    gt_cams = _load_gt(gt)
-    return _alignment(_estimated_poses(Path(workspace), gt_cams), gt_cams, gt)
+    from recon.eval.workspace import EvaluationError, model_to_ground_truth
+
+    try:
+        return model_to_ground_truth(Path(workspace), Path(gt))
+    except EvaluationError as exc:
+        raise ConfigError(f"--gt {exc}" if str(exc).startswith(str(gt)) else str(exc)) from None
 
 
-def _alignment(est: dict, gt_cams: dict, gt: str | Path):
-    import numpy as np
+def synth(out: str | Path, scene: str | None = None, **kwargs) -> Path:
+    """Render the seeded synthetic scene (recon.synth.render_scene) or, with ``scene``, a zoo scene
+    (recon.synth.zoo.render_zoo) into ``out``; keyword arguments given as None take their defaults."""
+    options = {k: v for k, v in kwargs.items() if v is not None}
+    if scene is None:
+        from recon.synth import render_scene
 
-    from recon.geometry.transforms import align_similarity, camera_center
+        render_scene(Path(out), **options)
+    else:
+        from recon.synth.zoo import UnknownScene, render_zoo
 
-    if len(est) < 3:
-        raise ConfigError(f"--gt {gt}: fewer than 3 images of the model have a ground-truth camera")
-    names = sorted(est)
-    src = np.array([camera_center(*est[n]) for n in names])
-    dst = np.array([gt_cams[n].center for n in names])
-    return align_similarity(src, dst, robust=True)[0]
-
-
-def evaluate(workspace: str | Path, gt: str | Path) -> dict:
-    """Figures of a workspace against ground truth: poses of ``sparse/0`` against the ground-truth
-    cameras; on a synthetic scene also accuracy/completeness of the fused cloud and the mesh, after
-    aligning the model to the ground truth by a robust similarity on the camera centres; with depth
-    maps, the fused cloud's reprojection error into the ground-truth cameras."""
-    from recon.eval.poses import pose_metrics
-
-    ws = Path(workspace)
-    gt_cams = _load_gt(gt)
-    est = _estimated_poses(ws, gt_cams)
-    if not est:
-        raise ConfigError(f"--gt {gt}: no image of the model has a ground-truth camera there (names differ?)")
-    figures: dict = {"poses": pose_metrics(est, gt_cams)}
-    scene_file = Path(gt) / "gt" / "scene.json"
-    surfaces = [(key, ws / rel) for key, rel in (("fused", "dense/fused.ply"), ("mesh", "mesh.ply"))
-                if (ws / rel).exists()]
-    reprojection = (ws / "dense" / "fused.ply").exists() and (ws / "dense" / "stereo" / "depth_maps").is_dir()
-    sim = _alignment(est, gt_cams, gt) if len(est) >= 3 and (reprojection or scene_file.exists() and surfaces) else None
-    if scene_file.exists() and surfaces and sim is not None:
-        import numpy as np
-        import trimesh
-
-        from recon.eval.surface import surface_metrics
-        from recon.synth import load_scene
-
-        scene = load_scene(Path(gt))
-        for key, path in surfaces:
-            geometry = trimesh.load(path, process=False)
-            geometry.vertices = sim.apply(np.asarray(geometry.vertices))
-            figures[key] = surface_metrics(geometry, scene)
-    if reprojection and sim is not None:
-        figures["fused_reprojection"] = _fused_reprojection(ws, gt_cams, sim)
-    return figures
-
-
-def _fused_reprojection(ws: Path, gt_cams: dict, to_gt, max_points: int = 200_000) -> dict:
-    """Reprojection error of (a sample of) the fused cloud into the ground-truth cameras, in pixels,
-    after refining ``to_gt`` on the sparse model's observations (:mod:`recon.eval.reprojection`)."""
-    import numpy as np
-    import pycolmap
-    import trimesh
-
-    from recon.eval.reprojection import DenseView, refine_alignment, reprojection_errors
-    from recon.mvs.colmap_io import read_depth_map
-    from recon.stages.mesh import dense_views, scaled_to
-
-    points = np.asarray(trimesh.load(ws / "dense" / "fused.ply").vertices)
-    if len(points) > max_points:
-        points = points[np.random.default_rng(0).choice(len(points), max_points, replace=False)]
-    sparse = pycolmap.Reconstruction(str(ws / "sparse" / "0"))
-    photos = {image.name: sparse.camera(image.camera_id) for image in sparse.images.values() if image.has_pose}
-    by_base = {Path(n).name: n for n in gt_cams}
-    views = []
-    for view in dense_views(ws / "dense"):
-        path = ws / "dense" / "stereo" / "depth_maps" / f"{view.name}.geometric.bin"
-        camera = photos.get(view.name)
-        if not path.exists() or camera is None or Path(view.name).name not in by_base:
-            continue
-        depth = read_depth_map(path)
-        scaled = scaled_to(view, depth.shape[1], depth.shape[0])
-        views.append(DenseView(by_base[Path(view.name).name], view.R, view.t, scaled.K, depth,
-                               lambda x, cam=camera: cam.img_from_cam(x), (camera.width, camera.height)))
-    observations = []
-    for image in sparse.images.values():
-        name = by_base.get(Path(image.name).name)
-        seen = [p for p in image.points2D if p.has_point3D()] if image.has_pose and name else []
-        if seen:
-            cam, truth = sparse.camera(image.camera_id), gt_cams[name]
-            scale = [truth.width / cam.width, truth.height / cam.height] if truth.width and truth.height else 1.0
-            observations.append((name, np.array([sparse.point3D(p.point3D_id).xyz for p in seen]),
-                                 np.array([p.xy for p in seen]) * scale))
-    to_gt = refine_alignment(observations, gt_cams, to_gt)
-    errors = reprojection_errors(points, views, gt_cams, to_gt)
-    if not len(errors):
-        return {}
-    return {"median_px": float(np.median(errors)), "p90_px": float(np.percentile(errors, 90)),
-            "observations": len(errors), "points": len(points)}
-
-
-def format_eval(figures: dict) -> str:
-    lines = []
-    p = figures.get("poses")
-    if p:
-        lines.append(f"poses    registered {p['registered']}/{p['total']}   AUC@1/3/5 {p['auc@1']:.1f} / "
-                     f"{p['auc@3']:.1f} / {p['auc@5']:.1f}   median camera-centre error "
-                     f"{p['median_center_error']:.4g} ({100 * p['median_center_error_rel']:.3f}% of scale)")
-    for key in ("fused", "mesh"):
-        m = figures.get(key)
-        if m:
-            taus = sorted(float(k.split("@")[1]) for k in m if k.startswith("fscore@"))
-            cells = "   ".join(f"@{100 * t:g}% of extent: accuracy {m[f'accuracy@{t:g}']:.1f} completeness "
-                               f"{m[f'completeness@{t:g}']:.1f} F {m[f'fscore@{t:g}'] / 100:.3f}" for t in taus)
-            lines.append(f"{key:<8} {cells}")
-    r = figures.get("fused_reprojection")
-    if r:
-        lines.append(f"fused    reprojection into the ground-truth cameras: median {r['median_px']:.2f} px, "
-                     f"90th percentile {r['p90_px']:.2f} px ({r['observations']} observations of "
-                     f"{r['points']} points)")
-    return "\n".join(lines)
-
-
-def synth(out: str | Path, **kwargs) -> Path:
-    from recon.synth import render_scene
-
-    render_scene(Path(out), **kwargs)
+        try:
+            render_zoo(scene, Path(out), **options)
+        except UnknownScene as exc:
+            raise ConfigError(f"--scene: {exc}") from None
     return Path(out)
 
 
@@ -324,20 +204,3 @@ def _photo_folder(photos: str | Path | list[str | Path], target: Path) -> Path:
             link.unlink()
         link.symlink_to(path.resolve())
     return folder
-
-
-def format_localize(result: dict) -> str:
-    """Per photo: placed (inliers, camera centre) or refused (the reason); then where the outputs are."""
-    width = max([len(p["name"]) for p in result["photos"]] + [4])
-    lines = []
-    for p in result["photos"]:
-        if p["placed"]:
-            centre = ", ".join(f"{v:.4g}" for v in p["centre"])
-            lines.append(f"placed   {p['name']:<{width}}  {p['inliers']} inliers of {p['matches']} matches   "
-                         f"centre ({centre})")
-        else:
-            lines.append(f"refused  {p['name']:<{width}}  {p['reason']}")
-    ws = Path(result["workspace"])
-    lines.append(f"recon: placed {result['placed']} of {result['total']} photo(s); poses in {ws / 'poses.json'}, "
-                 f"model with them in {ws / 'sparse' / '0'}")
-    return "\n".join(lines)

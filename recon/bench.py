@@ -19,9 +19,11 @@ from pathlib import Path
 import recon
 from recon.eval.groundtruth import load_cameras
 from recon.eval.poses import pose_metrics
+from recon.products import Published, SparseModel
 
 SPARSE_SETS = ("temple_ring", "fountain_p11")
 REPO = Path(__file__).resolve().parents[1]
+SPARSE = SparseModel.MODELS  # the sparse section's name, and its output folder
 
 
 def _poses(rec) -> dict:
@@ -44,7 +46,7 @@ def colmap_defaults(images: Path, out: Path) -> tuple[dict[str, float], object]:
     t1 = time.perf_counter()
     pycolmap.match_exhaustive(str(db))
     t2 = time.perf_counter()
-    models = pycolmap.incremental_mapping(str(db), str(images), str(out / "sparse"))
+    models = pycolmap.incremental_mapping(str(db), str(images), str(out / SparseModel.MODELS))
     t3 = time.perf_counter()
     best = max(models.values(), key=lambda r: r.num_reg_images()) if models else None
     return {"features": t1 - t0, "matching": t2 - t1, "sfm": t3 - t2}, best
@@ -55,7 +57,7 @@ def recon_sparse(images: Path, ws: Path) -> tuple[dict[str, float], object]:
 
     result = recon.run(REPO / "pipelines" / "sparse.yaml", images=str(images), workspace=str(ws))
     times = dict(result.seconds)
-    return times, pycolmap.Reconstruction(str(ws / "sparse" / "0"))
+    return times, pycolmap.Reconstruction(str(Published(ws).model()))
 
 
 def bench_sparse(datasets: Path, out: Path) -> list[dict]:
@@ -98,21 +100,22 @@ def print_sparse(rows: list[dict]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m recon.bench")
-    parser.add_argument("--only", choices=["sparse", "lowlight", "mvs", "dense", "scale"], default=None,
-                        help="one section; without it every section but scale (300 views, ~30 min: make bench-scale)")
+    parser.add_argument("--only", choices=[SPARSE, "lowlight", "mvs", "dense", "wide", "scale", "quality"], default=None,
+                        help="one section; without it every section but scale (300 views, ~30 min: make bench-scale) "
+                             "and quality (the scene zoo, hours: make bench-quality)")
     parser.add_argument("--datasets", type=Path, default=recon.datasets_root())
     parser.add_argument("--out", type=Path, default=REPO / "bench_out")
     args = parser.parse_args(argv)
-    if not args.datasets.is_dir():
+    if args.only != "quality" and not args.datasets.is_dir():
         print(f"bench: datasets folder {args.datasets} absent (set RECON_DATASETS)", file=sys.stderr)
         return 2
     from recon.logs import setup_console
 
     setup_console(-1)
     args.out.mkdir(parents=True, exist_ok=True)
-    if args.only in (None, "sparse"):
+    if args.only in (None, SPARSE):
         print("== sparse: recon vs COLMAP defaults (same run; ratio = recon total / COLMAP total) ==")
-        print_sparse(bench_sparse(args.datasets, args.out / "sparse"))
+        print_sparse(bench_sparse(args.datasets, args.out / SPARSE))
     if args.only in (None, "lowlight"):
         bench_lowlight(args.datasets, args.out / "lowlight")
     if args.only in (None, "mvs"):
@@ -123,6 +126,14 @@ def main(argv: list[str] | None = None) -> int:
         mvs_bench.main(["--cache", str(args.out / "mvs")])
     if args.only in (None, "dense"):
         bench_dense(args.out / "dense")
+    if args.only in (None, "wide"):
+        from recon import wide_bench
+
+        wide_bench.main(["--out", str(args.out / "wide")])
+    if args.only == "quality":
+        from recon import quality_bench
+
+        quality_bench.main(["--out", str(args.out)])
     if args.only == "scale":
         from recon import scale_bench
 
@@ -198,11 +209,11 @@ def bench_lowlight(datasets: Path, out: Path) -> None:
     gt = load_cameras(root)
     print("\n== low light: temple_ring darkened (gain 2^-2.5, gamma 1.5, noise 1.5 levels) ==")
     print(f"{'pipeline':<10}{'seconds':>9}{'reg':>8}{'AUC@1':>7}{'AUC@3':>7}{'AUC@5':>7}")
-    for name in ("sparse", "lowlight"):
+    for name in (SPARSE, "lowlight"):
         start = time.perf_counter()
         recon.run(REPO / "pipelines" / f"{name}.yaml", images=str(dark), workspace=str(out / name), until="sfm")
         seconds = time.perf_counter() - start
-        f = pose_metrics(_poses(pycolmap.Reconstruction(str(out / name / "sparse" / "0"))), gt)
+        f = pose_metrics(_poses(pycolmap.Reconstruction(str(Published(out / name).model()))), gt)
         print(f"{name:<10}{seconds:>9.1f}{f['registered']:>5}/{f['total']:<2}{f['auc@1']:>7.1f}{f['auc@3']:>7.1f}"
               f"{f['auc@5']:>7.1f}")
 

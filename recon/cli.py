@@ -6,12 +6,14 @@ import argparse
 import dataclasses
 import json
 import logging
+import signal
 import sys
 from pathlib import Path
 
 from recon import api
 from recon.config import ConfigError, describe, type_name
 from recon.options import doc_of
+from recon.products import Published
 from recon.stage import StageError
 from recon.workspace import WorkspaceError
 
@@ -58,13 +60,16 @@ def _parser() -> argparse.ArgumentParser:
                                               "or a synthetic scene")
     e.add_argument("--json", action="store_true", help="print JSON")
 
-    y = sub.add_parser("synth", help="render a synthetic scene with ground truth")
-    y.add_argument("out")
-    y.add_argument("--views", type=int, default=24)
+    y = sub.add_parser("synth", help="render a synthetic scene with ground truth (the seeded one, or a zoo scene)")
+    y.add_argument("out", nargs="?", help="folder to write the scene into")
+    y.add_argument("--scene", help="a zoo scene by name (see --list); without it, the seeded scene of --seed")
+    y.add_argument("--list", action="store_true", help="list the zoo's scenes and what each one tests")
+    y.add_argument("--views", type=int, default=None, help="regular views (default 24, or the zoo scene's own)")
     y.add_argument("--width", type=int, default=640)
     y.add_argument("--height", type=int, default=480)
     y.add_argument("--seed", type=int, default=0)
-    y.add_argument("--holdout", type=int, default=0, help="extra views held out for evaluation")
+    y.add_argument("--holdout", type=int, default=None,
+                   help="extra views held out for evaluation (default 0, or the zoo scene's own)")
 
     d = sub.add_parser("demo", help="render the demo scene if absent, reconstruct it, evaluate it")
     d.add_argument("--workspace", default="demo_workspace")
@@ -95,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     from recon.logs import setup_console
 
     setup_console(-1 if args.quiet else (1 if args.verbose else 0))
+    _stop_on_sigterm()
     try:
         return _dispatch(args)
     except (ConfigError, StageError, WorkspaceError) as exc:
@@ -102,16 +108,37 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except BrokenPipeError:  # output piped into `head`
         return 0
-    except KeyboardInterrupt:
-        print("recon: interrupted; finished stages and items are kept: run the same command again to resume",
-              file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, Terminated)
+        print(f"recon: {'terminated (SIGTERM)' if terminated else 'interrupted'}; finished stages and items are "
+              "kept: run the same command again to resume", file=sys.stderr)
+        return 143 if terminated else 130
     except Exception as exc:  # a bug: one line for the user, the traceback in the log file
         log.debug("internal error", exc_info=True)
-        where = api.last_log_file()
+        from recon.logs import log_file
+
+        where = log_file()
         print(f"recon: internal error: {type(exc).__name__}: {exc}"
               + (f" (traceback in {where})" if where else ""), file=sys.stderr)
         return 1
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (``kill``, a batch scheduler, a container stopping): the run stops as on Ctrl-C."""
+
+
+def _stop_on_sigterm() -> None:
+    """Make SIGTERM stop recon as Ctrl-C does: finished stages and items kept, one line, exit 143.
+
+    Importing pycolmap installs glog's failure-signal handler, SIGTERM included, which prints a
+    native stack dump and kills the process; it is imported first so that this handler replaces it.
+    """
+    import pycolmap  # noqa: F401
+
+    def terminated(signum, frame):
+        raise Terminated
+
+    signal.signal(signal.SIGTERM, terminated)
 
 
 def _dispatch(args) -> int:
@@ -137,16 +164,27 @@ def _dispatch(args) -> int:
         return 0
     if args.command == "eval":
         figures = api.evaluate(args.workspace, args.gt)
-        print(json.dumps(figures, indent=2) if args.json else api.format_eval(figures))
+        print(json.dumps(figures, indent=2) if args.json else format_eval(figures))
         return 0
     if args.command == "synth":
-        info = api.synth(args.out, views=args.views, width=args.width, height=args.height, seed=args.seed,
-                         holdout=args.holdout)
-        print(f"recon: rendered {args.views} views into {info}")
+        from recon.synth import load_scene
+        from recon.synth.zoo import zoo_list
+
+        if args.list:
+            for name, summary in zoo_list():
+                print(f"{name:<16} {summary}")
+            return 0
+        if args.out is None:
+            raise ConfigError("synth: give OUT, the folder to render the scene into (or --list to list the zoo)")
+        out = api.synth(args.out, scene=args.scene, views=args.views, width=args.width, height=args.height,
+                        seed=args.seed, holdout=args.holdout)
+        info = load_scene(out)
+        print(f"recon: rendered {info.name or 'the seeded scene'}, {info.views} views and {info.holdout} held out, "
+              f"into {out}")
         return 0
     if args.command == "demo":
         figures = api.demo(args.workspace, args.config)
-        print(api.format_eval(figures))
+        print(format_eval(figures))
         ws = Path(args.workspace)
         for name in ("textured.glb", "report.html"):
             if (ws / name).exists():
@@ -163,7 +201,7 @@ def _dispatch(args) -> int:
         return 0
     if args.command == "localize":
         result = api.localize(args.workspace, args.photos, args.out, overrides=args.override)
-        print(json.dumps(result, indent=2) if args.json else api.format_localize(result))
+        print(json.dumps(result, indent=2) if args.json else format_localize(result))
         return 0
     raise AssertionError(args.command)
 
@@ -189,13 +227,54 @@ def _view(workspace: Path, port: int) -> int:
     return 0
 
 
+def format_eval(figures: dict) -> str:
+    lines = []
+    p = figures.get("poses")
+    if p:
+        lines.append(f"poses    registered {p['registered']}/{p['total']}   AUC@1/3/5 {p['auc@1']:.1f} / "
+                     f"{p['auc@3']:.1f} / {p['auc@5']:.1f}   median camera-centre error "
+                     f"{p['median_center_error']:.4g} ({100 * p['median_center_error_rel']:.3f}% of scale)")
+    for key in ("fused", "mesh"):
+        m = figures.get(key)
+        if m:
+            taus = sorted(float(k.split("@")[1]) for k in m if k.startswith("fscore@"))
+            cells = "   ".join(f"@{100 * t:g}% of extent: accuracy {m[f'accuracy@{t:g}']:.1f} completeness "
+                               f"{m[f'completeness@{t:g}']:.1f} F {m[f'fscore@{t:g}'] / 100:.3f}" for t in taus)
+            lines.append(f"{key:<8} {cells}")
+    r = figures.get("fused_reprojection")
+    if r:
+        lines.append(f"fused    reprojection into the ground-truth cameras: median {r['median_px']:.2f} px, "
+                     f"90th percentile {r['p90_px']:.2f} px ({r['observations']} observations of "
+                     f"{r['points']} points)")
+    return "\n".join(lines)
+
+
+def format_localize(result: dict) -> str:
+    """Per photo: placed (inliers, camera centre) or refused (the reason); then where the outputs are."""
+    width = max([len(p["name"]) for p in result["photos"]] + [4])
+    lines = []
+    for p in result["photos"]:
+        if p["placed"]:
+            centre = ", ".join(f"{v:.4g}" for v in p["centre"])
+            lines.append(f"placed   {p['name']:<{width}}  {p['inliers']} inliers of {p['matches']} matches   "
+                         f"centre ({centre})")
+        else:
+            lines.append(f"refused  {p['name']:<{width}}  {p['reason']}")
+    ws = Path(result["workspace"])
+    lines.append(f"recon: placed {result['placed']} of {result['total']} photo(s); poses in {ws / 'poses.json'}, "
+                 f"model with them in {Published(ws).model()}")
+    return "\n".join(lines)
+
+
 def _print_stages() -> None:
-    from recon.stage import REGISTRY
+    from recon.stage import REGISTRY, producer
 
     for name, stage in REGISTRY.items():
         print(f"{name} (v{stage.version}): {stage.summary}")
-        print(f"  inputs:  {', '.join(stage.requires) or 'the photo folder'}")
-        print(f"  outputs: {', '.join(stage.outputs)}")
+        inputs = [f"{p.__name__} ({producer(p)})" for p in stage.requires]
+        inputs += [f"{p.__name__} ({producer(p)}, when part of the run)" for p in stage.optional]
+        print(f"  inputs:  {', '.join(inputs) or 'the photo folder'}")
+        print(f"  outputs: {stage.produces.__name__}: {', '.join(stage.produces.describe)}")
         for field in dataclasses.fields(stage.Config):
             default = field.default if field.default is not dataclasses.MISSING else field.default_factory()
             print(f"    {name}.{field.name} ({type_name(stage.Config, field.name)}, default {default!r}): "

@@ -118,8 +118,11 @@ def _worker_setup(main_pid: int) -> None:
     """Pool workers ignore Ctrl-C (which the terminal sends to every process of the run): the main
     process stops the run and the pool lets each worker finish its item, so no traceback is printed
     and no item in flight is lost. They exit when the main process dies (``kill -9``, the OOM
-    killer): an orphaned pool would otherwise idle forever, holding memory and the terminal."""
+    killer): an orphaned pool would otherwise idle forever, holding memory and the terminal.
+    SIGTERM ends a worker quietly: the handler pycolmap installs (glog's) would print a native
+    stack dump first."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     threading.Thread(target=_exit_with, args=(main_pid,), daemon=True, name="recon-orphan-watch").start()
 
 

@@ -41,6 +41,12 @@ class _StderrHandler(logging.StreamHandler):
     def stream(self, value) -> None:  # StreamHandler.__init__ assigns it; the property ignores that
         pass
 
+    def format(self, record: logging.LogRecord) -> str:
+        """The line with what cannot be written escaped (``\\udce9``): a file name that is not UTF-8
+        carries surrogates, which a strict stream (a redirected or wrapped stderr) refuses with a
+        logging traceback."""
+        return super().format(record).encode("utf-8", "backslashreplace").decode("utf-8")
+
 
 def quiet_colmap(log_file: Path | None = None) -> None:
     """Send COLMAP's INFO/WARNING lines to files named ``log_file`` + a timestamp (or drop them);
@@ -94,3 +100,15 @@ def _is_fd2(stream) -> bool:
         return stream.fileno() == 2
     except (AttributeError, OSError, ValueError):
         return False
+
+
+def file_handler(path: Path) -> logging.FileHandler:
+    """A handler appending to the workspace log ``path`` in UTF-8, escaping what UTF-8 cannot hold
+    (the surrogates of a file name that is not UTF-8) instead of failing with a logging traceback."""
+    return logging.FileHandler(path, encoding="utf-8", errors="backslashreplace")
+
+
+def log_file() -> Path | None:
+    """The workspace log file the current run writes to (where ``recon`` points for a traceback)."""
+    handlers = [h for h in logging.getLogger("recon").handlers if isinstance(h, logging.FileHandler)]
+    return Path(handlers[-1].baseFilename) if handlers else None

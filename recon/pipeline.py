@@ -102,7 +102,7 @@ def selected_stages(cfg: RunConfig) -> list[str]:
     wanted = set(cfg.run.stages) if cfg.run.stages else set(order[: order.index(cfg.run.until) + 1])
     stack = list(wanted)
     while stack:
-        for dep in REGISTRY[stack.pop()].requires:
+        for dep in REGISTRY[stack.pop()].needs:
             if dep not in wanted:
                 wanted.add(dep)
                 stack.append(dep)
@@ -131,7 +131,7 @@ def plan(cfg: RunConfig, ws: Workspace) -> Plan:
             "stage": name,
             "version": stage.version,
             "config": to_dict(output_options(cfg.stages[name])),
-            "upstream": {dep: keys[dep] for dep in (*stage.requires, *stage.optional) if dep in keys},
+            "upstream": {dep: keys[dep] for dep in stage.upstream if dep in keys},
             "seed": cfg.run.seed if stage.uses_seed else None,
             "fingerprint": stage.fingerprint(probe, cfg.stages[name]),
         }
@@ -224,13 +224,17 @@ def _run_stage(cfg: RunConfig, ws: Workspace, name: str, key: str, material: dic
     out = ws.begin(name, key)
     ctx = StageContext(name=name, out=out, workspace=ws, images=cfg.images, seed=cfg.run.seed,
                        executor=executor, base=cfg.base, hashes=HashCache(ws), video=cfg.video,
-                       upstream={d: outputs[d] for d in (*stage.requires, *stage.optional) if d in outputs},
+                       upstream={d: outputs[d] for d in stage.upstream if d in outputs},
                        settings=cfg.as_dict())
     log.info("%s: running", name)
     start = time.time()
     with native_stderr_to(ws.meta / "logs" / "native.log"):
         summary = stage.run(ctx, cfg.stages[name]) or {}
     seconds = time.time() - start
+    missing = stage.produces(out).missing()
+    if missing:
+        raise RuntimeError(f"{name}: finished without writing {', '.join(missing)}, which its product "
+                           f"{stage.produces.__name__} declares")
     manifest = {
         "stage": name,
         "version": stage.version,
@@ -279,7 +283,7 @@ def _unpublish_downstream(ws: Workspace, name: str) -> None:
     those stages run, or are found cached, for the new one."""
     affected = {name}
     for stage_name, stage in REGISTRY.items():
-        if affected & {*stage.requires, *stage.optional}:
+        if affected & set(stage.upstream):
             affected.add(stage_name)
             if stage_name != name:
                 for link in stage.publish.values():

@@ -2,9 +2,9 @@
 
 A stage is a small class with a ``name``, a ``version`` (bump it when its output would change for
 the same inputs), a ``Config`` dataclass (every field declared with :func:`recon.options.opt`), the
-stages it ``requires`` (whose outputs it reads), the ``outputs`` it writes, the workspace paths it
-``publish``-es, and ``run(ctx, cfg)``, which reads its inputs through ``ctx`` and writes only into
-``ctx.out``. The pipeline decides whether it runs, from its cache key (docs/ARCHITECTURE.md, "Stages").
+products it ``requires`` (and reads when present: ``optional``), the product it ``produces`` (whose
+class owns the file names and the workspace links, :mod:`recon.products`), and ``run(ctx, cfg)``,
+which reads its inputs through ``ctx.input(Product)`` and writes only into ``ctx.out``. The pipeline decides whether it runs, from its cache key (docs/ARCHITECTURE.md, "Stages").
 """
 
 from __future__ import annotations
@@ -15,11 +15,14 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 from recon.executor import Executor
+from recon.products import Product
 from recon.progress import Bar, bars_enabled
 from recon.workspace import HashCache, Workspace
+
+P = TypeVar("P", bound=Product)
 
 
 class StageError(RuntimeError):
@@ -30,15 +33,30 @@ class Stage:
     name: ClassVar[str]
     version: ClassVar[int] = 1
     Config: ClassVar[type]
-    requires: ClassVar[tuple[str, ...]] = ()
-    #: stages whose outputs it also reads when they are part of the run (their keys join its key)
-    optional: ClassVar[tuple[str, ...]] = ()
-    outputs: ClassVar[tuple[str, ...]] = ()
-    #: output-relative path -> workspace-relative link
-    publish: ClassVar[dict[str, str]] = {}
+    #: the products it reads: the stages that make them run before it and their keys join its key
+    requires: ClassVar[tuple[type[Product], ...]] = ()
+    #: products it also reads when their stages are part of the run
+    optional: ClassVar[tuple[type[Product], ...]] = ()
+    #: the product it writes into its output folder
+    produces: ClassVar[type[Product]]
     #: whether the run's seed changes this stage's output (then it is part of the key)
     uses_seed: ClassVar[bool] = False
     summary: ClassVar[str] = ""
+
+    @property
+    def publish(self) -> dict[str, str]:
+        """Output-relative path -> workspace link (the product's)."""
+        return self.produces.publish
+
+    @property
+    def upstream(self) -> tuple[str, ...]:
+        """The stages whose outputs it reads: the producers of its required, then optional, products."""
+        return tuple(producer(p) for p in (*self.requires, *self.optional))
+
+    @property
+    def needs(self) -> tuple[str, ...]:
+        """The stages that must run before it: the producers of its required products."""
+        return tuple(producer(p) for p in self.requires)
 
     def fingerprint(self, ctx: StageContext, cfg: Any) -> Any:
         """Extra cache-key material (ingest: the input files' content). None for most stages."""
@@ -54,8 +72,19 @@ REGISTRY: dict[str, Stage] = {}
 
 def register(cls: type[Stage]) -> type[Stage]:
     """Class decorator: add a stage to the registry (registration order = pipeline order)."""
+    other = next((s.name for s in REGISTRY.values() if s.produces is cls.produces and s.name != cls.name), None)
+    if other is not None:
+        raise TypeError(f"stages {other} and {cls.name} both produce {cls.produces.__name__}")
     REGISTRY[cls.name] = cls()
     return cls
+
+
+def producer(product: type[Product]) -> str:
+    """The name of the stage that makes ``product``."""
+    for name, stage in REGISTRY.items():
+        if stage.produces is product:
+            return name
+    raise KeyError(f"no stage produces {product.__name__}")
 
 
 def resolve_path(base: Path, value: str | os.PathLike) -> Path:
@@ -93,13 +122,23 @@ class StageContext:
         """The content hash of an input file (remembered across runs)."""
         return self.hashes.digest(path)
 
-    def input(self, stage: str) -> Path:
-        """The completed output folder of an upstream stage."""
+    def input(self, product: type[P]) -> P:
+        """An upstream product (typed as ``product``), from the completed output of its stage."""
+        stage = producer(product)
         try:
-            return self.upstream[stage]
+            return product(self.upstream[stage])
         except KeyError:
             raise StageError(f"{self.name}: needs the output of stage '{stage}', which this run "
                              "does not include; add it to `stages`") from None
+
+    def has(self, product: type[Product]) -> bool:
+        """Whether an optional upstream product is part of this run."""
+        return producer(product) in self.upstream
+
+    @property
+    def output(self) -> Any:
+        """This stage's own product, rooted at its temporary output folder."""
+        return REGISTRY[self.name].produces(self.out)
 
     def map(self, fn: Callable, items: Iterable, *, desc: str, done: Callable[[Any], bool] | None = None,
             size: Callable[[Any], int] | None = None) -> list:

@@ -28,16 +28,13 @@ truncated database or a deleted model file makes the stage stale instead of feed
 from __future__ import annotations
 
 import contextlib
-import errno
 import fcntl
-import hashlib
-import json
 import os
 import shutil
 import stat
-import tempfile
 from pathlib import Path
-from typing import Any
+
+from recon.files import file_digest, read_json, write_json
 
 CACHE_DIR = ".recon"
 MANIFEST = "manifest.json"
@@ -216,55 +213,12 @@ def _is_under(path: Path, folder: Path) -> bool:
     return Path(os.path.abspath(path)).is_relative_to(os.path.abspath(folder))
 
 
-# -----------------------------------------------------------------------------------------
-# Small file helpers used across recon
-
-
-def write_json(path: Path, data: Any) -> None:
-    """Atomically write JSON (temp file in the same folder, fsync, rename)."""
-    write_bytes(path, (json.dumps(data, indent=2, sort_keys=False, default=str) + "\n").encode())
-
-
-def write_bytes(path: Path, data: bytes) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException as exc:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
-            raise WorkspaceError(f"{path.parent}: no space left on the device; completed stages are "
-                                 "kept; free some space and run again") from None
-        raise
-
-
-def read_json(path: Path) -> Any:
-    try:
-        return json.loads(Path(path).read_text())
-    except (FileNotFoundError, json.JSONDecodeError):
-        return None
-
-
 def _fsync_dir(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
     finally:
         os.close(fd)
-
-
-def file_digest(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 #: files up to this size are hashed whenever a cached output is checked; larger ones when their

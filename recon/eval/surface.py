@@ -88,11 +88,16 @@ def observed_points(scene: SceneInfo, spacing: float) -> np.ndarray:
 @functools.lru_cache(maxsize=4)
 def _observed_points(root: str, spacing: float, _stamp: int) -> np.ndarray:
     from recon.synth.dataset import load_scene
+    from recon.synth.wide import load_views, range_points
 
     scene = load_scene(root)
+    wide = load_views(root)  # fisheye / 360 views: their maps hold ranges along COLMAP's rays
     chunks = []
     for name, cam in scene.cameras().items():
         depth = scene.depth(name)
+        if name in wide:
+            chunks.append(range_points(depth, wide[name]))
+            continue
         v, u = np.nonzero(depth > 0)
         chunks.append(backproject(cam.K, cam.R, cam.t, np.column_stack([u + 0.5, v + 0.5]), depth[v, u]))
     pts = np.concatenate(chunks)

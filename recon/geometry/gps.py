@@ -101,17 +101,6 @@ def wgs84_from_enu(enu: np.ndarray, origin: tuple[float, float, float]) -> np.nd
     return transform.enu_to_ellipsoid(np.asarray(enu, dtype=float).reshape(-1, 3), *origin)
 
 
-def central_origin(lat_lon_alt: np.ndarray) -> tuple[float, float, float]:
-    """(lat, lon, alt) of the centroid of WGS84 positions (N, 3), taken through ECEF (no trouble at
-    the antimeridian): a local frame there keeps every coordinate small."""
-    import pycolmap
-
-    transform = pycolmap.GPSTransform(pycolmap.GPSTransformEllipsoid.WGS84)
-    ecef = transform.ellipsoid_to_ecef(np.asarray(lat_lon_alt, dtype=float).reshape(-1, 3))
-    lat, lon, _ = transform.ecef_to_ellipsoid(ecef.mean(0, keepdims=True))[0]
-    return float(lat), float(lon), float(np.mean(np.asarray(lat_lon_alt, dtype=float)[:, 2]))
-
-
 def _degrees(dms, ref, negative: str) -> float | None:
     """Decimal degrees of an EXIF (degrees, minutes, seconds) triple and its N/S or E/W reference."""
     try:

@@ -196,3 +196,30 @@ def align_similarity(src: np.ndarray, dst: np.ndarray, *, robust: bool = False,
     if inliers.sum() < 3:
         return best, inliers
     return umeyama(src[inliers], dst[inliers]), inliers
+
+
+def up_direction(rotations: np.ndarray, centers: np.ndarray) -> np.ndarray:
+    """The world direction the photos hold as "up": minus the mean of the cameras' image-down axes
+    (people hold cameras roughly level); the normal of the cameras' plane when that mean is weak."""
+    if len(rotations) == 0:
+        return np.array([0.0, 0.0, 1.0])
+    down = rotations[:, 1, :].mean(axis=0)
+    if np.linalg.norm(down) > 0.3:
+        return -down / np.linalg.norm(down)
+    if len(centers) >= 3:
+        normal = np.linalg.svd(centers - centers.mean(axis=0))[2][2]
+        return normal if normal @ -down >= 0 else -normal
+    return np.array([0.0, 0.0, 1.0])
+
+
+def level_rotation(up: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking the unit vector ``up`` to +Z (a world whose up is +Z, as ENU)."""
+    up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(up, z)
+    s, c = np.linalg.norm(axis), float(up @ z)
+    if s < 1e-12:
+        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
+    k = axis / s
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + s * K + (1 - c) * K @ K

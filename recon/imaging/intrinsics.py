@@ -24,7 +24,17 @@ MODEL_PARAMS: dict[str, tuple[str, ...]] = {
     "RADIAL": ("f", "cx", "cy", "k1", "k2"),
     "OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"),
     "FULL_OPENCV": ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
+    # fisheye (equidistant: image radius = f x angle, then distortion) and 360-degree panoramas: COLMAP
+    # fits and exports them; the pinhole operations below (undistortion, projection) refuse them
+    "SIMPLE_FISHEYE": ("f", "cx", "cy"),
+    "FISHEYE": ("fx", "fy", "cx", "cy"),
+    "SIMPLE_RADIAL_FISHEYE": ("f", "cx", "cy", "k"),
+    "RADIAL_FISHEYE": ("f", "cx", "cy", "k1", "k2"),
+    "OPENCV_FISHEYE": ("fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"),
+    "EQUIRECTANGULAR": ("w", "h"),  # the image size: the model has no other parameter
 }
+#: the models whose distortion follows OpenCV's pinhole formulas (the rest are fisheye or spherical)
+PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV")
 
 
 @dataclass(frozen=True)
@@ -87,6 +97,8 @@ class Intrinsics:
 
     def opencv_distortion(self) -> np.ndarray:
         """Distortion coefficients as OpenCV orders them: (k1, k2, p1, p2[, k3, k4, k5, k6])."""
+        if self.model not in PINHOLE_MODELS:
+            raise ValueError(f"{self.model} is not a pinhole camera: OpenCV's pinhole distortion does not apply")
         names = MODEL_PARAMS[self.model]
         p = dict(zip(names, self.params))
         if self.model in ("SIMPLE_PINHOLE", "PINHOLE"):
@@ -120,7 +132,8 @@ class Intrinsics:
 
         Focal lengths and principal point scale by width'/width and height'/height; a model with
         one focal length takes the mean of the two factors (they differ only by rounding).
-        Distortion coefficients act on normalised coordinates and do not change.
+        Distortion coefficients act on normalised coordinates and do not change; an equirectangular
+        camera's parameters are its size.
         """
         sx, sy = width / self.width, height / self.height
         names = MODEL_PARAMS[self.model]
@@ -132,6 +145,8 @@ class Intrinsics:
                 params[i] *= sy
             elif name == "f":
                 params[i] *= 0.5 * (sx + sy)
+            elif name in ("w", "h"):
+                params[i] = width if name == "w" else height
         return Intrinsics(self.model, width, height, tuple(params))
 
     def project(self, points_cam: np.ndarray) -> np.ndarray:

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.mvs.options import MVSOptions
+from recon.products import SparseModel
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +72,7 @@ def prepare_synthetic(root: Path, views: int, width: int, height: int, seed: int
     from recon.synth import load_scene, render_scene
 
     dense = root / "dense"
-    if (dense / "sparse").exists():
+    if (dense / SparseModel.MODELS).exists():
         return dense
     if root.exists():
         shutil.rmtree(root)
@@ -89,7 +90,7 @@ def prepare_fountain(root: Path, dataset: Path) -> Path:
     from recon.mvs.views import ViewCamera
 
     dense = root / "dense"
-    if (dense / "sparse").exists():
+    if (dense / SparseModel.MODELS).exists():
         return dense
     cams = [ViewCamera(name, c.K, c.R, c.t, c.width, c.height)
             for name, c in sorted(load_cameras(dataset / "gt" / "gt_dense_cameras").items())]
@@ -109,7 +110,7 @@ def run_views(dense: Path, options: MVSOptions, max_views: int) -> dict:
     out = dense / "stereo"
     for folder in ("depth_maps", "normal_maps"):
         shutil.rmtree(out / folder, ignore_errors=True)
-    problems = select_problems(pycolmap.Reconstruction(dense / "sparse"), options)
+    problems = select_problems(pycolmap.Reconstruction(dense / SparseModel.MODELS), options)
     measured = problems[:max_views]
     needed = {p.ref for p in measured} | {s for p in measured for s in p.sources}
     timings: dict[str, list[float]] = {}

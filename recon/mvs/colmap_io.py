@@ -14,10 +14,11 @@ COLMAP's own stereo fusion (the tests show it); this module writes the layout th
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from recon.files import atomic
 
 
 def read_map(path: str | os.PathLike) -> np.ndarray:
@@ -44,18 +45,9 @@ def write_map(path: str | os.PathLike, array: np.ndarray) -> Path:
     height, width, channels = array.shape
     header = f"{width}&{height}&{channels}&".encode("ascii")
     payload = np.ascontiguousarray(array.transpose(2, 0, 1), dtype="<f4").tobytes()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(header)
-            handle.write(payload)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    with atomic(path) as tmp:  # no fsync: a kill leaves the old file or none, and maps are many
+        tmp.write_bytes(header + payload)
+    return Path(path)
 
 
 def read_depth_map(path: str | os.PathLike) -> np.ndarray:

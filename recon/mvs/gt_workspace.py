@@ -16,6 +16,7 @@ import numpy as np
 import pycolmap
 
 from recon.mvs.views import ViewCamera
+from recon.products import SparseModel
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +113,7 @@ def points_from_matches(cameras: list[ViewCamera], image_dir: str | Path, work_d
     finally:
         db.close()
     pycolmap.match_exhaustive(database)
-    sparse = work_dir / "sparse"
+    sparse = work_dir / SparseModel.MODELS
     sparse.mkdir(exist_ok=True)
     return pycolmap.triangulate_points(posed_reconstruction(cameras, ids), database, image_dir, sparse)
 

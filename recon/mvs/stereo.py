@@ -33,6 +33,7 @@ from recon.mvs import patchmatch
 from recon.mvs.colmap_io import read_depth_map, read_normal_map, write_map
 from recon.mvs.options import MVSOptions
 from recon.mvs.views import Problem, ViewCamera, select_problems
+from recon.products import SparseModel
 
 log = logging.getLogger(__name__)
 
@@ -139,7 +140,7 @@ def dense_stereo(dense_dir: str | Path, options: MVSOptions = MVSOptions(),
     views, skipping views whose maps already exist. Returns the geometric depth maps' paths."""
     dense_dir = Path(dense_dir)
     out_dir = Path(out_dir) if out_dir is not None else dense_dir / "stereo"
-    problems = select_problems(pycolmap.Reconstruction(dense_dir / "sparse"), options)
+    problems = select_problems(pycolmap.Reconstruction(dense_dir / SparseModel.MODELS), options)
     for problem in problems:
         if not map_path(out_dir, "depth", problem.ref, "photometric").exists():
             photometric_view(dense_dir, problem, options, out_dir)

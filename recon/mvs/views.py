@@ -11,7 +11,8 @@ p99 * (1 + margin).
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import pycolmap
@@ -57,6 +58,19 @@ def view_camera(image: pycolmap.Image, camera: pycolmap.Camera) -> ViewCamera:
     return ViewCamera(image.name, np.asarray(camera.calibration_matrix(), dtype=np.float64),
                       np.asarray(pose.rotation.matrix(), dtype=np.float64),
                       np.asarray(pose.translation, dtype=np.float64), int(camera.width), int(camera.height))
+
+
+def model_views(model: Path) -> list[ViewCamera]:
+    """Pinhole cameras of the registered images of an undistorted model folder, sorted by name."""
+    rec = pycolmap.Reconstruction(str(model))
+    views = [view_camera(img, rec.camera(img.camera_id)) for img in rec.images.values() if img.has_pose]
+    return sorted(views, key=lambda v: v.name)
+
+
+def scaled_to(view: ViewCamera, width: int, height: int) -> ViewCamera:
+    """The camera of a view for an image of ``width`` x ``height`` (depth maps are computed smaller)."""
+    sx, sy = width / view.width, height / view.height
+    return replace(view, K=np.diag([sx, sy, 1.0]) @ view.K, width=width, height=height)
 
 
 def angle_weight(angle_deg: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.geometry.transforms import up_direction
 from recon.sparse.database import private_copy
 
 log = logging.getLogger(__name__)
@@ -137,7 +138,9 @@ def read_model(path: Path) -> tuple[Model, dict[str, tuple[int, float]]]:
         pose = im.cam_from_world()
         R, t = pose.rotation.matrix(), np.asarray(pose.translation)
         cam = rec.cameras[im.camera_id]
-        K = cam.calibration_matrix()
+        # a 360 camera has no calibration matrix: its pixels per radian and centre draw its frustum
+        K = cam.calibration_matrix() if not cam.is_spherical() else \
+            np.array([[cam.width / (2 * np.pi), 0, cam.width / 2], [0, cam.height / np.pi, cam.height / 2], [0, 0, 1]])
         names.append(im.name)
         rotations.append(R)
         centers.append(-R.T @ t)
@@ -163,20 +166,6 @@ def read_model(path: Path) -> tuple[Model, dict[str, tuple[int, float]]]:
         errors=np.concatenate(all_errors) if all_errors else np.zeros(0),
         up=up_direction(rotations_a, centers_a))
     return model, per_image
-
-
-def up_direction(rotations: np.ndarray, centers: np.ndarray) -> np.ndarray:
-    """The world direction the photos hold as "up": minus the mean of the cameras' image-down axes
-    (people hold cameras roughly level); the normal of the cameras' plane when that mean is weak."""
-    if len(rotations) == 0:
-        return np.array([0.0, 0.0, 1.0])
-    down = rotations[:, 1, :].mean(axis=0)
-    if np.linalg.norm(down) > 0.3:
-        return -down / np.linalg.norm(down)
-    if len(centers) >= 3:
-        normal = np.linalg.svd(centers - centers.mean(axis=0))[2][2]
-        return normal if normal @ -down >= 0 else -normal
-    return np.array([0.0, 0.0, 1.0])
 
 
 def image_rows(matches: Matches, registration: dict, per_image: dict[str, tuple[int, float]]) -> list[ImageRow]:

@@ -78,7 +78,7 @@ def build_report(sources: gather.Sources, *, title: str, evaluation: dict | None
         sections.append(("matching", "Matching", figure(plots.pair_matrix(matches.pairs, matches.names),
                                                         "pair-matrix", "Verified matches of every photo pair")))
     if model is not None:
-        sections.append(("sparse", "Sparse model", _sparse_section(model, registration, figure)))
+        sections.append(("sparse-model", "Sparse model", _sparse_section(model, registration, figure)))
         summary["registered"] = len(model.names)
         summary["points"] = len(model.points)
     if _exists(sources.stereo):

@@ -48,7 +48,7 @@ def payload(model: Model | None, dense: tuple[np.ndarray, np.ndarray] | None,
         data["layers"].append({"id": "cameras", "label": f"cameras ({len(model.names)})", "kind": "lines",
                                "positions": _b64(segments, np.float32), "color": "#e8553e"})
         if len(model.points):
-            data["layers"].append({"id": "sparse", "label": f"sparse points ({len(model.points)})",
+            data["layers"].append({"id": "sparse-points", "label": f"sparse points ({len(model.points)})",
                                    "kind": "points", "positions": _b64(model.points - origin, np.float32),
                                    "colors": _b64(model.colors, np.uint8), "size": 3})
     if dense is not None and len(dense[0]):

@@ -11,17 +11,15 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.files import atomic
+
 
 def camera_params(model: str, width: int, height: int, focal: float) -> list[float]:
-    """Initial COLMAP parameters of ``model``: the focal prior, principal point at the centre, no distortion."""
-    cx, cy = width / 2.0, height / 2.0
-    return {
-        "SIMPLE_PINHOLE": [focal, cx, cy],
-        "PINHOLE": [focal, focal, cx, cy],
-        "SIMPLE_RADIAL": [focal, cx, cy, 0.0],
-        "RADIAL": [focal, cx, cy, 0.0, 0.0],
-        "OPENCV": [focal, focal, cx, cy, 0.0, 0.0, 0.0, 0.0],
-    }[model]
+    """Initial COLMAP parameters of ``model``: the focal prior, principal point at the centre, no
+    distortion (COLMAP's own initialisation; an EQUIRECTANGULAR camera's parameters are its size)."""
+    import pycolmap
+
+    return pycolmap.Camera.create_from_model_name(0, model, focal, width, height).params.tolist()
 
 
 @contextlib.contextmanager
@@ -74,14 +72,17 @@ def read_keypoints(con: sqlite3.Connection, image_id: int) -> np.ndarray:
 
 
 def read_camera(con: sqlite3.Connection, image_id: int):
-    """The pycolmap camera of an image."""
+    """The pycolmap camera of an image, with its focal-length prior flag (COLMAP verifies a pair with
+    an essential matrix only when both cameras have one, and a fisheye pair not at all without)."""
     import pycolmap
 
-    camera_id, model, width, height, params = con.execute(
-        "SELECT c.camera_id, c.model, c.width, c.height, c.params FROM cameras c JOIN images i "
-        "ON c.camera_id = i.camera_id WHERE i.image_id = ?", (image_id,)).fetchone()
-    return pycolmap.Camera(model=pycolmap.CameraModelId(model), width=width, height=height,
-                           params=np.frombuffer(params, dtype=np.float64).copy(), camera_id=camera_id)
+    camera_id, model, width, height, params, prior = con.execute(
+        "SELECT c.camera_id, c.model, c.width, c.height, c.params, c.prior_focal_length FROM cameras c "
+        "JOIN images i ON c.camera_id = i.camera_id WHERE i.image_id = ?", (image_id,)).fetchone()
+    camera = pycolmap.Camera(model=pycolmap.CameraModelId(model), width=width, height=height,
+                             params=np.frombuffer(params, dtype=np.float64).copy(), camera_id=camera_id)
+    camera.has_prior_focal_length = bool(prior)
+    return camera
 
 
 def sift_descriptors(rows: np.ndarray):
@@ -111,10 +112,8 @@ def write_database(path: Path, cameras: list[dict], images: list[dict],
     """
     import pycolmap
 
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.unlink(missing_ok=True)
     ids: dict[str, int] = {}
-    with opened(tmp) as db:
+    with atomic(path) as tmp, opened(tmp) as db:
         cam_ids = {}
         for cam in cameras:
             camera = pycolmap.Camera(model=cam["model"], width=cam["width"], height=cam["height"],
@@ -127,5 +126,4 @@ def write_database(path: Path, cameras: list[dict], images: list[dict],
             db.write_keypoints(image_id, keypoints)
             db.write_descriptors(image_id, sift_descriptors(descriptors))
             ids[name] = image_id
-    tmp.replace(path)
     return ids

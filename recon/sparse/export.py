@@ -6,13 +6,22 @@ from pathlib import Path
 
 import numpy as np
 
-# nerfstudio's OPENCV camera has k1, k2, p1, p2; COLMAP's parameter order per model
-_DISTORTION = {
-    "SIMPLE_PINHOLE": {}, "PINHOLE": {},
-    "SIMPLE_RADIAL": {"k1": 3},
-    "RADIAL": {"k1": 3, "k2": 4},
-    "OPENCV": {"k1": 4, "k2": 5, "p1": 6, "p2": 7},
+from recon.files import write_bytes
+
+# nerfstudio's camera model and its distortion fields (index into COLMAP's parameters) per COLMAP model:
+# OPENCV has k1, k2, p1, p2; OPENCV_FISHEYE k1..k4 (theta_d = theta (1 + k1 theta^2 + ... + k4 theta^8),
+# which COLMAP's fisheye models are with fewer terms)
+_NERFSTUDIO = {
+    "SIMPLE_PINHOLE": ("OPENCV", {}), "PINHOLE": ("OPENCV", {}),
+    "SIMPLE_RADIAL": ("OPENCV", {"k1": 3}),
+    "RADIAL": ("OPENCV", {"k1": 3, "k2": 4}),
+    "OPENCV": ("OPENCV", {"k1": 4, "k2": 5, "p1": 6, "p2": 7}),
+    "SIMPLE_FISHEYE": ("OPENCV_FISHEYE", {}), "FISHEYE": ("OPENCV_FISHEYE", {}),
+    "SIMPLE_RADIAL_FISHEYE": ("OPENCV_FISHEYE", {"k1": 3}),
+    "RADIAL_FISHEYE": ("OPENCV_FISHEYE", {"k1": 3, "k2": 4}),
+    "OPENCV_FISHEYE": ("OPENCV_FISHEYE", {"k1": 4, "k2": 5, "k3": 6, "k4": 7}),
 }
+_ZERO_DISTORTION = {"OPENCV": ("k1", "k2", "p1", "p2"), "OPENCV_FISHEYE": ("k1", "k2", "k3", "k4")}
 
 
 def write_points_ply(rec, path: Path) -> int:
@@ -23,26 +32,28 @@ def write_points_ply(rec, path: Path) -> int:
     xyz = np.array([p.xyz for p in pts.values()], np.float64).reshape(-1, 3)
     rgb = np.array([p.color for p in pts.values()], np.uint8).reshape(-1, 3)
     cloud = trimesh.PointCloud(xyz, colors=np.c_[rgb, np.full(len(rgb), 255, np.uint8)])
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(cloud.export(file_type="ply"))
-    tmp.replace(path)
+    write_bytes(path, cloud.export(file_type="ply"))
     return len(xyz)
 
 
 def intrinsics(camera) -> dict:
-    """nerfstudio intrinsics of a COLMAP camera (pinhole models become OPENCV with zero distortion)."""
+    """nerfstudio intrinsics of a COLMAP camera: pinhole models become OPENCV, fisheye models
+    OPENCV_FISHEYE; an equirectangular camera is EQUIRECTANGULAR with fl_x = fl_y = w / 2 and the
+    principal point at the centre, as nerfstudio's ray generation expects (its centre column looks
+    forward, as COLMAP's does)."""
     model = camera.model.name
-    if model not in _DISTORTION:
+    w, h = camera.width, camera.height
+    if model == "EQUIRECTANGULAR":
+        return {"camera_model": "EQUIRECTANGULAR", "fl_x": w / 2, "fl_y": w / 2, "cx": w / 2, "cy": h / 2,
+                "w": w, "h": h}
+    if model not in _NERFSTUDIO:
         raise ValueError(f"camera model {model} has no nerfstudio equivalent here")
+    kind, distortion = _NERFSTUDIO[model]
     p = list(camera.params)
-    if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
-        fx = fy = p[0]
-        cx, cy = p[1], p[2]
-    else:
-        fx, fy, cx, cy = p[:4]
-    out = {"camera_model": "OPENCV", "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy,
-           "w": camera.width, "h": camera.height, "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0}
-    out.update({k: p[i] for k, i in _DISTORTION[model].items()})
+    out = {"camera_model": kind, "fl_x": camera.focal_length_x, "fl_y": camera.focal_length_y,
+           "cx": camera.principal_point_x, "cy": camera.principal_point_y, "w": w, "h": h,
+           **dict.fromkeys(_ZERO_DISTORTION[kind], 0.0)}
+    out.update({k: p[i] for k, i in distortion.items()})
     return out
 
 
@@ -55,11 +66,13 @@ def opengl_camera_to_world(cam_from_world: np.ndarray) -> np.ndarray:
     return c2w
 
 
-def transforms_json(rec, image_prefix: str = "images/") -> dict:
+def transforms_json(rec, image_prefix: str = "images/", points_file: str | None = None) -> dict:
     """nerfstudio's transforms.json for a COLMAP model (the layout ns-process-data writes).
 
     World axes are COLMAP's (``applied_transform`` is the identity); intrinsics are global when the
-    model has one camera, per frame otherwise.
+    model has one camera, per frame otherwise. ``points_file``, the sparse points' PLY relative to
+    transforms.json, becomes ``ply_file_path``: nerfstudio's dataparser loads it (open3d) as the
+    initial points of splatfacto.
     """
     cameras = {cid: intrinsics(cam) for cid, cam in rec.cameras.items()}
     single = len(cameras) == 1
@@ -75,4 +88,6 @@ def transforms_json(rec, image_prefix: str = "images/") -> dict:
         frames.append(frame)
     data["frames"] = frames
     data["applied_transform"] = np.eye(4)[:3].tolist()
+    if points_file is not None:
+        data["ply_file_path"] = points_file
     return data

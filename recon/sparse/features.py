@@ -17,6 +17,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from recon.config import ConfigError
+from recon.files import atomic
+from recon.imaging.masks import inside_mask, load_mask
+from recon.logs import quiet_colmap
+from recon.options import opt
 from recon.sparse.photos import stored_size
 
 #: extractor types that need pycolmap's ONNX build: on the CPU wheel they abort the whole process
@@ -36,6 +41,51 @@ class SiftSettings:
     domain_size_pooling: bool
     upright: bool
     darkness_adaptivity: bool
+
+
+@dataclass(frozen=True)
+class FeaturesConfig:
+    type: str = opt("sift", "feature type; only 'sift' runs on the CPU pycolmap wheel")
+    max_image_size: int = opt(1600, "longest image side for extraction (photos are downsized, anti-aliased)", gt=0)
+    max_num_features: int = opt(8192, "keep at most this many features per photo", gt=0)
+    min_image_size: int = opt(800, "smaller photos are upsized (bicubic) to this longest side for extraction",
+                              ge=0)
+    first_octave: int = opt(0, "SIFT first octave: -1 upsamples 2x inside SIFT (COLMAP's default; slow)",
+                            ge=-1, le=3)
+    peak_threshold: float = opt(0.0066667, "SIFT peak (contrast) threshold; lower = more features in "
+                                           "low-contrast photos", gt=0)
+    edge_threshold: float = opt(10.0, "SIFT edge threshold", gt=0)
+    estimate_affine_shape: bool = opt(False, "estimate affine keypoint shape (slower, helps wide baselines)")
+    domain_size_pooling: bool = opt(False, "DSP-SIFT descriptors (slower, more robust)")
+    upright: bool = opt(False, "skip orientation estimation (photos all upright)")
+    darkness_adaptivity: bool = opt(False, "adapt the threshold in dark images")
+
+    def __post_init__(self):
+        if self.type.lower() in ONNX_ONLY:
+            raise ConfigError(
+                f"features.type: '{self.type}' needs pycolmap built with ONNX support; on the CPU wheel "
+                "it aborts the whole process (uncatchable), so recon refuses it. Use 'sift'.")
+        if self.type.lower() != "sift":
+            raise ConfigError(f"features.type: unknown feature type '{self.type}'; use 'sift'")
+
+    def settings(self) -> SiftSettings:
+        return SiftSettings(self.max_image_size, self.min_image_size, self.max_num_features, self.first_octave,
+                            self.peak_threshold,
+                            self.edge_threshold, self.estimate_affine_shape, self.domain_size_pooling,
+                            self.upright, self.darkness_adaptivity)
+
+
+def extract_photo(task: tuple[Path, Path, SiftSettings, Path | None]) -> int:
+    """One photo's SIFT (source, destination .npz, settings, mask folder or None), in a worker; its count."""
+    source, dest, settings, mask_dir = task
+    quiet_colmap()  # a worker process: COLMAP's info lines would flood the terminal
+    keypoints, descriptors = extract_sift(source, settings)
+    mask = load_mask(mask_dir, dest.name.removesuffix(".npz")) if mask_dir is not None else None
+    if mask is not None:
+        keep = inside_mask(mask, keypoints[:, :2])
+        keypoints, descriptors = keypoints[keep], descriptors[keep]
+    save_features(dest, keypoints, descriptors)
+    return len(keypoints)
 
 
 #: JPEG decoding at 1/8, 1/4, 1/2 scale (libjpeg's DCT scaling: cheap, and it averages like an area filter)
@@ -98,10 +148,8 @@ def extract_sift(path: Path, s: SiftSettings) -> tuple[np.ndarray, np.ndarray]:
 
 def save_features(path: Path, keypoints: np.ndarray, descriptors: np.ndarray) -> None:
     """Write one photo's features atomically (a kill never leaves a half-written file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.npz")
-    np.savez(tmp, keypoints=keypoints, descriptors=descriptors)
-    tmp.replace(path)
+    with atomic(path) as tmp:
+        np.savez(tmp, keypoints=keypoints, descriptors=descriptors)
 
 
 def load_features(path: Path) -> tuple[np.ndarray, np.ndarray]:

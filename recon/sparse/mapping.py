@@ -6,6 +6,8 @@ import logging
 import tempfile
 from pathlib import Path
 
+import numpy as np
+
 from recon.sparse.database import image_ids, private_copy, read_only
 
 log = logging.getLogger(__name__)
@@ -79,11 +81,14 @@ def final_bundle_adjustment(rec, cfg):
     """One last global BA over the finished model, with a robust loss; then, when
     ``cfg.final_refine_principal_point``, one more that also refines the principal points, kept only
     where it explains the observations better (an orbit at one height leaves them unconstrained:
-    they trade off against the cameras' tilt). Returns the model kept."""
+    they trade off against the cameras' tilt). Fisheye and 360 cameras keep theirs (the synthetic
+    fisheye orbit: refining lowered the reprojection error by 0.67 %, and AUC@5 from 96.9 to 85.0).
+    Returns the model kept."""
     import pycolmap
 
     _bundle_adjust(rec, cfg, cfg.refine_principal_point)
-    if cfg.refine_principal_point or not cfg.final_refine_principal_point:
+    pinhole = all(camera.is_perspective_pinhole() for camera in rec.cameras.values())
+    if cfg.refine_principal_point or not cfg.final_refine_principal_point or not pinhole:
         return rec
     fixed = rec.compute_mean_reprojection_error()
     refined = pycolmap.Reconstruction(rec)
@@ -112,15 +117,17 @@ def _bundle_adjust(rec, cfg, principal_point: bool) -> None:
     pycolmap.bundle_adjustment(rec, opts)
 
 
-def registration_report(database: Path, models: list, min_matches: int) -> dict:
-    """Per model: registered photos; per unregistered photo: the reason, from its verified matches."""
+def registration_report(database: Path, models: list, min_matches: int, init_min_tri_angle: float = 16.0) -> dict:
+    """Per model: registered photos; per unregistered photo: the reason, from its verified matches;
+    with no model, ``reason``: what the database shows about why (:func:`_no_model_reason`)."""
     import pycolmap
 
     with read_only(database) as db:
         names = {i: name for name, i in image_ids(db).items()}
-        inliers = db.execute("SELECT pair_id, rows FROM two_view_geometries").fetchall()
+        geometries = db.execute("SELECT pair_id, rows, config FROM two_view_geometries").fetchall()
+        cameras = db.execute("SELECT width, height, params, prior_focal_length FROM cameras").fetchall()
     partners: dict[int, list[int]] = {i: [] for i in names}
-    for pair_id, n in inliers:
+    for pair_id, n, _ in geometries:
         if n >= min_matches:
             a, b = pycolmap.pair_id_to_image_pair(pair_id)
             partners[a].append(n)
@@ -141,21 +148,74 @@ def registration_report(database: Path, models: list, min_matches: int) -> dict:
             best = max(partners[image_id])
             unregistered[name] = (f"registration failed: {len(partners[image_id])} matched photo(s), best "
                                   f"{best} inliers, but too few 2D-3D correspondences to the model")
-    reason = ""
-    if not models:
-        matched = sum(1 for v in partners.values() if v)
-        strong = sum(1 for _, n in inliers if n >= 100)
-        if matched < 2:
-            reason = (f"Too few matches: no pair of the {len(names)} photos shares {min_matches}+ verified matches; "
-                      "are they photos of the same scene with enough overlap?")
-        else:
-            reason = (f"No initial pair: {matched} photos have matches but {strong} pair(s) have the 100+ inliers "
-                      "with enough baseline needed to start; take photos with more overlap, or lower "
-                      "sfm.init_min_tri_angle")
+    matched = sum(1 for v in partners.values() if v)
     return {
         "total_images": len(names),
         "models": [{"registered": rec.num_reg_images(), "points": rec.num_points3D(),
                     "mean_reproj_error": rec.compute_mean_reprojection_error()} for rec in models],
         "unregistered": unregistered,
-        "reason": reason,
+        "reason": "" if models else _no_model_reason(len(names), matched, geometries, cameras, min_matches,
+                                                     init_min_tri_angle),
     }
+
+
+#: COLMAP's incremental mapper starts from a pair with at least this many verified inliers
+#: (IncrementalMapperOptions.init_min_num_inliers)
+INIT_MIN_INLIERS = 100
+
+
+def _no_model_reason(photos: int, matched: int, geometries: list, cameras: list, min_matches: int,
+                     init_min_tri_angle: float) -> str:
+    """Why no model was built, from what the database shows: too few matches, no pair strong enough
+    to start, or strong pairs that still gave no start, with the causes visible for that, most
+    telling first: focal priors the pairs' geometry contradicts, pairs that fit a homography, the
+    focal lengths the cameras start from, the baseline."""
+    import pycolmap
+
+    if matched < 2:
+        return (f"Too few matches: no pair of the {photos} photos shares {min_matches}+ verified matches; "
+                "are they photos of the same scene with enough overlap?")
+    strong = [config for _, n, config in geometries if n >= INIT_MIN_INLIERS]
+    if not strong:
+        best = max(n for _, n, _ in geometries)
+        return (f"No initial pair: {matched} photos have matches, but no pair has the {INIT_MIN_INLIERS}+ verified "
+                f"inliers the mapper needs to start (the best has {best}); take photos with more overlap, or "
+                "extract more features (features.max_image_size, features.max_num_features)")
+    config = pycolmap.TwoViewGeometryConfiguration
+    flat = sum(1 for c in strong if c in (config.PLANAR, config.PANORAMIC, config.PLANAR_OR_PANORAMIC))
+    uncalibrated = sum(1 for c in strong if c == config.UNCALIBRATED)
+    fov, priors = _starting_fov(cameras)
+    causes = []
+    if priors and 2 * uncalibrated >= len(strong):
+        # with focal priors COLMAP calls a pair UNCALIBRATED when the essential matrix they imply
+        # explains far fewer matches than a free fundamental matrix
+        causes.append(f"wrong focal length priors: {uncalibrated} of those pairs contradict the focal lengths the "
+                      f"cameras start from (EXIF or calibration: {fov} degree field of view across the diagonal); "
+                      "a cropped, resized or digitally zoomed photo keeps a focal length that no longer fits it: "
+                      "check the photos' EXIF")
+    if flat:
+        causes.append(f"{flat} of those pairs fit a homography (the camera turned on the spot, or the scene is "
+                      "one plane): take photos from positions further apart")
+    if priors and not causes:
+        causes.append(f"wrong focal length priors ({priors} of {len(cameras)} camera(s) start from EXIF or a "
+                      f"calibration: {fov} degree field of view across the diagonal): check the photos' EXIF")
+    elif not priors:
+        causes.append(f"no EXIF focal length: the cameras start from a guess ({fov} degree field of view across "
+                      "the diagonal, ingest.default_focal_factor) that may be far off: a calibration helps")
+    causes.append(f"too little baseline between the overlapping photos: lower sfm.init_min_tri_angle "
+                  f"(now {init_min_tri_angle:g} degrees)")
+    return (f"No initial pair: {len(strong)} pair(s) have the {INIT_MIN_INLIERS}+ verified inliers the mapper needs "
+            f"to start, but none of them gave a first two-view model with a {init_min_tri_angle:g} degree "
+            f"triangulation angle. Likely causes: " + "; ".join(causes) + ".")
+
+
+def _starting_fov(cameras: list) -> tuple[str, int]:
+    """The diagonal field of view (degrees, one value or a range) of the focal lengths the database's
+    cameras start from, and how many of them are priors (EXIF or calibration), not guesses."""
+    fovs, priors = [], 0
+    for width, height, params, prior in cameras:
+        focal = float(np.frombuffer(params, dtype=np.float64)[0])
+        fovs.append(float(np.degrees(2 * np.arctan2(np.hypot(width, height) / 2, focal))))
+        priors += bool(prior)
+    span = f"{min(fovs):.0f}" if max(fovs) - min(fovs) < 1 else f"{min(fovs):.0f} to {max(fovs):.0f}"
+    return span, priors

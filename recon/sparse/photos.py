@@ -19,7 +19,9 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageOps, UnidentifiedImageError
 
+from recon.files import atomic
 from recon.geometry.gps import GpsTag, read_gps
+from recon.sparse import lens
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +51,7 @@ class PhotoInfo:
     focal_px: float | None  # from EXIF, in pixels of the upright image
     needs_copy: bool  # not 8-bit grey/RGB, or rotated by EXIF
     gps: GpsTag | None = None  # EXIF GPS (and drone XMP)
+    projection: str = "perspective"  # the lens by its metadata: perspective, fisheye, equirectangular (lens.py)
 
 
 @dataclass
@@ -128,7 +131,8 @@ def inspect_photo(path: Path, name: str) -> PhotoInfo:
     return PhotoInfo(name=name, width=w, height=h, mode=mode, orientation=orientation,
                      focal_px=_exif_focal_px(exif, w, h, path),
                      needs_copy=mode not in ("L", "RGB") or orientation not in (0, 1),
-                     gps=read_gps(exif, xmp, str(path)))
+                     gps=read_gps(exif, xmp, str(path)),
+                     projection=lens.projection({**dict(exif), **dict(exif.get_ifd(_EXIF_IFD))}, xmp, w, h))
 
 
 def stored_size(path: Path) -> tuple[int, int]:
@@ -204,8 +208,6 @@ def read_upright(path: Path) -> Image.Image:
 def normalized_copy(src: Path, dest: Path) -> None:
     """Write the upright 8-bit version of ``src`` to ``dest`` (same format as ``dest``'s suffix)."""
     img = read_upright(src)
-    dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.tmp{dest.suffix}")
     params = {"quality": 95} if dest.suffix.lower() in (".jpg", ".jpeg") else {}
-    img.save(tmp, **params)
-    tmp.replace(dest)
+    with atomic(dest) as tmp:
+        img.save(tmp, **params)

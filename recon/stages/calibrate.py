@@ -16,11 +16,10 @@ from typing import Literal
 import numpy as np
 
 from recon.imaging.calibration import CharucoTarget, Chessboard, calibrate
-from recon.imaging.intrinsics import Intrinsics
 from recon.options import opt
+from recon.products import Calibration
 from recon.sparse.photos import PhotoError, inspect_photo, list_photos, read_upright
 from recon.stage import Stage, StageContext, StageError, register
-from recon.workspace import read_json, write_json
 
 
 @dataclass(frozen=True)
@@ -51,7 +50,7 @@ class Calibrate(Stage):
     name = "calibrate"
     version = 1
     Config = CalibrateConfig
-    outputs = ("intrinsics.json",)
+    produces = Calibration
     summary = "camera intrinsics and distortion from chessboard/ChArUco photos (when calibrate.images is set)"
 
     def fingerprint(self, ctx: StageContext, cfg: CalibrateConfig):
@@ -85,16 +84,8 @@ class Calibrate(Stage):
         unused = [photos[i].name for i in range(len(photos)) if i not in set(result.used)]
         if unused:
             ctx.log.warning("calibrate: board not found in %d photo(s): %s", len(unused), ", ".join(unused[:5]))
-        write_json(ctx.out / "intrinsics.json", {
+        ctx.output.write({
             "model": cam.model, "width": cam.width, "height": cam.height, "params": list(cam.params),
             "use": cfg.use, "rms": result.rms, "views": len(result.used), "photos": len(photos), "unused": unused})
         return {"calibrated": True, "model": cam.model, "rms": round(result.rms, 4), "views": len(result.used),
                 "fx": round(cam.fx, 2)}
-
-
-def calibrated_camera(output: Path) -> tuple[Intrinsics, str] | None:
-    """The camera written by a calibrate output folder and its ``use``, or None when it calibrated nothing."""
-    data = read_json(output / "intrinsics.json")
-    if data is None:
-        return None
-    return Intrinsics(data["model"], data["width"], data["height"], tuple(data["params"])), data["use"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from recon.options import opt
+from recon.products import DenseScene, DepthMaps, FusedCloud
 from recon.stage import Stage, StageContext, StageError, register
 
 
@@ -22,19 +23,18 @@ class Fusion(Stage):
     name = "fusion"
     version = 1
     Config = FusionConfig
-    requires = ("undistort", "mvs")
-    outputs = ("fused.ply",)
-    publish = {"fused.ply": "dense/fused.ply"}
+    requires = (DenseScene, DepthMaps)
+    produces = FusedCloud
     summary = "fuse consistent depth-map pixels into a point cloud with normals and colours"
 
     def run(self, ctx: StageContext, cfg: FusionConfig) -> dict:
         import pycolmap
 
-        dense = ctx.input("undistort") / "dense"
+        dense = ctx.input(DenseScene)
         scratch = ctx.out / "workspace"  # COLMAP's layout, assembled from the two stages' outputs
         scratch.mkdir(exist_ok=True)
-        for name, target in (("images", dense / "images"), ("sparse", dense / "sparse"),
-                             ("stereo", ctx.input("mvs") / "stereo")):
+        for target in (dense.images, dense.model, ctx.input(DepthMaps).folder):
+            name = target.name
             link = scratch / name
             if link.is_symlink():
                 link.unlink()

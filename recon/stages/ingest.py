@@ -8,6 +8,7 @@ frames spread by optical-flow parallax) written into ``images/``; the list is th
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections import defaultdict
 from dataclasses import dataclass
@@ -16,17 +17,21 @@ from typing import Literal
 
 from recon.imaging.video import KeyframeOptions, extract_keyframes
 from recon.options import opt
+from recon.products import Photos
+from recon.sparse import lens
 from recon.sparse.photos import Listing, PhotoError, inspect_photo, list_photos, normalized_copy
 from recon.stage import Stage, StageContext, StageError, register
-from recon.workspace import write_json
 
 
 @dataclass(frozen=True)
 class IngestConfig:
     camera_mode: Literal["auto", "single", "per_folder", "per_image"] = opt(
         "auto", "camera grouping: auto = one per folder, per image where sizes differ in a folder")
-    camera_model: Literal["SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"] = opt(
-        "SIMPLE_RADIAL", "COLMAP camera model fitted by bundle adjustment")
+    camera_model: Literal["auto", "SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV",
+                          "SIMPLE_FISHEYE", "FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "OPENCV_FISHEYE",
+                          "EQUIRECTANGULAR"] = opt(
+        "SIMPLE_RADIAL", "COLMAP camera model fitted by bundle adjustment; auto: by the photos' metadata "
+                         "(fisheye lens: OPENCV_FISHEYE, 360 panorama: EQUIRECTANGULAR, else SIMPLE_RADIAL)")
     default_focal_factor: float = opt(1.2, "focal = factor x max(width, height) when EXIF has none", gt=0)
     min_photos: int = opt(2, "fewest readable photos the run needs (2 to reconstruct; localize takes 1)", ge=1)
     skip_unreadable: bool = opt(True, "skip corrupt/empty photos with a warning instead of stopping")
@@ -71,11 +76,10 @@ def _fingerprint(ctx: StageContext, folder: Path) -> list[list[str]]:
 @register
 class Ingest(Stage):
     name = "ingest"
-    version = 1
+    version = 2
     Config = IngestConfig
-    outputs = ("images/", "images.json")
-    publish = {"images": "images"}
-    summary = "check the photos, group them into cameras, read EXIF focal lengths"
+    produces = Photos
+    summary = "check the photos, group them into cameras, read EXIF focal lengths and GPS positions"
 
     def fingerprint(self, ctx: StageContext, cfg: IngestConfig):
         video = _video(ctx)
@@ -86,7 +90,7 @@ class Ingest(Stage):
     def run(self, ctx: StageContext, cfg: IngestConfig) -> dict:
         video = _video(ctx)
         if video is not None:
-            folder = ctx.out / "images"
+            folder = ctx.output.images
             extract_keyframes(video, folder, cfg.keyframes)
         else:
             folder = _images_folder(ctx)
@@ -114,14 +118,22 @@ class Ingest(Stage):
                                  f"{cfg.min_photos}: lower ingest.keyframes.min_parallax, or film more motion")
             raise StageError(f"images: {folder} has {len(infos)} readable photo(s); the run needs at least "
                              f"{cfg.min_photos} (ingest.min_photos)")
-        copies = _place_photos(ctx.out / "images", infos) if video is None else 0  # keyframes are there
+        copies = _place_photos(ctx.output.images, infos) if video is None else 0  # keyframes are there
         cameras, image_camera = _group_cameras([i for _, i in infos], cfg)
+        for cam in cameras:
+            members = [i for _, i in infos if image_camera[i.name] == cam["id"]]
+            why = lens.model_warning(cam["model"], [i.projection for i in members],
+                                     [(i.width, i.height) for i in members])
+            if why:
+                ctx.log.warning("ingest: camera %d (%s%s): %s", cam["id"], members[0].name,
+                                ", ..." if len(members) > 1 else "", why)
         duplicates = _duplicates(ctx, [(p, i.name) for p, i in infos])
         for group in duplicates:
             ctx.log.warning("identical photos (kept, but they add nothing): %s", ", ".join(group))
-        write_json(ctx.out / "images.json", {
+        ctx.output.write_listing({
             "images": [{"name": i.name, "width": i.width, "height": i.height, "camera": image_camera[i.name],
-                        "focal_px": i.focal_px, "converted": i.needs_copy} for _, i in infos],
+                        "focal_px": i.focal_px, "converted": i.needs_copy, "projection": i.projection,
+                        "gps": dataclasses.asdict(i.gps) if i.gps else None} for _, i in infos],
             "cameras": cameras,
             "skipped": [str(p) for p in others] + bad,
             "duplicates": duplicates,
@@ -129,6 +141,7 @@ class Ingest(Stage):
         })
         with_exif = sum(1 for _, i in infos if i.focal_px)
         return {"images": len(infos), "cameras": len(cameras), "exif_focal": with_exif,
+                "gps": sum(1 for _, i in infos if i.gps),
                 "converted": copies, "skipped": len(others) + len(bad), "duplicates": len(duplicates),
                 "ordered": video is not None}
 
@@ -180,8 +193,9 @@ def _group_cameras(infos, cfg: IngestConfig) -> tuple[list[dict], dict[str, int]
         focals = [i.focal_px for i in members if i.focal_px]
         prior = bool(focals)
         focal = sorted(focals)[len(focals) // 2] if focals else cfg.default_focal_factor * max(first.width, first.height)
-        cameras.append({"id": cam_id, "model": cfg.camera_model, "width": first.width, "height": first.height,
-                        "focal": focal, "prior_focal": prior})
+        model = lens.auto_model([i.projection for i in members]) if cfg.camera_model == "auto" else cfg.camera_model
+        cameras.append({"id": cam_id, "model": model, "width": first.width, "height": first.height,
+                        "focal": focal, "prior_focal": prior and model not in lens.SPHERICAL_MODELS})
         for info in members:
             image_camera[info.name] = cam_id
     return cameras, image_camera

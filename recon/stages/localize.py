@@ -15,6 +15,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from recon.config import ConfigError, build
+from recon.files import read_json, write_json
 from recon.localize import (
     LocalizeOptions,
     Photo,
@@ -25,10 +26,10 @@ from recon.localize import (
     poses_json,
 )
 from recon.options import opt
-from recon.sparse.features import SiftSettings, load_features
+from recon.products import Localization, Photos, Published
+from recon.sparse.features import FeaturesConfig, SiftSettings, extract_photo, load_features
 from recon.stage import Progress, Stage, StageContext, StageError, register
-from recon.stages.features import FeaturesConfig, extract_one
-from recon.workspace import Workspace, read_json, write_json
+from recon.workspace import Workspace
 
 
 @dataclass(frozen=True)
@@ -49,7 +50,8 @@ def _reference(ctx: StageContext, cfg: LocalizeConfig) -> _Reference:
         raise StageError("localize.model: no reference given; set it to the workspace of a finished "
                          "reconstruction (e.g. one made by `recon run pipelines/sparse.yaml`)")
     root = ctx.resolve(cfg.model)
-    ref = _Reference(root, root / "sparse" / "0", root / "database.db")
+    published = Published(root)
+    ref = _Reference(root, published.model(), published.database)
     missing = [p.relative_to(root).as_posix() for p in (ref.model / "images.bin", ref.database) if not p.is_file()]
     if missing:
         raise StageError(f"localize.model: {root} has no {' or '.join(missing)}; give the folder of a finished "
@@ -89,9 +91,8 @@ class Localize(Stage):
     name = "localize"
     version = 1
     Config = LocalizeConfig
-    requires = ("ingest",)
-    outputs = ("features/<image>.npz", "poses.json", "sparse/0/")
-    publish = {"poses.json": "poses.json", "sparse": "sparse"}
+    requires = (Photos,)
+    produces = Localization
     uses_seed = True
     summary = "place new photos in an existing reconstruction: retrieval, 2D-3D matches, absolute pose"
 
@@ -103,12 +104,11 @@ class Localize(Stage):
     def run(self, ctx: StageContext, cfg: LocalizeConfig) -> dict:
         ref = _reference(ctx, cfg)
         settings = _sift_settings(ctx, ref)
-        ingest = ctx.input("ingest")
-        listing = read_json(ingest / "images.json")
+        photos = ctx.input(Photos)
+        listing = photos.listing()
         images = listing["images"]
-        tasks = [(ingest / "images" / img["name"], ctx.out / "features" / f"{img['name']}.npz", settings, None)
-                 for img in images]
-        ctx.map(extract_one, tasks, desc="features", done=lambda t: t[1].is_file())
+        tasks = [(photos.images / img["name"], ctx.output.features(img["name"]), settings, None) for img in images]
+        ctx.map(extract_photo, tasks, desc="features", done=lambda t: t[1].is_file())
         cameras = {c["id"]: c for c in listing["cameras"]}
         photos = [Photo(img["name"], _photo_camera(img, cameras), *load_features(npz))
                   for img, (_, npz, _, _) in zip(images, tasks)]
@@ -132,10 +132,10 @@ class Localize(Stage):
             progress.close()
         rec = reference.reconstruction
         added = add_placed(rec, placements, {p.name: p for p in photos})
-        model = ctx.out / "sparse" / "0"
+        model = ctx.output.model()
         model.mkdir(parents=True, exist_ok=True)
         rec.write(str(model))
-        write_json(ctx.out / "poses.json", {"reference": str(ref.root), **poses_json(placements, added)})
+        write_json(ctx.output.poses, {"reference": str(ref.root), **poses_json(placements, added)})
         placed = [p for p in placements if p.placed]
         if not placed:
             ctx.log.warning("localize: no photo could be placed in %s", ref.root)

@@ -11,11 +11,11 @@ from pathlib import Path
 from typing import Literal
 
 from recon.options import opt
+from recon.products import FeatureDatabase, MatchDatabase
 from recon.sparse import pairs as pairing
 from recon.sparse.database import image_ids, opened, read_descriptors, read_only
-from recon.sparse.matcher import Block, PairOptions, match_block, read_block
+from recon.sparse.matcher import Block, BlockError, PairOptions, match_block, read_block
 from recon.stage import Stage, StageContext, register
-from recon.workspace import read_json
 
 
 @dataclass(frozen=True)
@@ -80,30 +80,30 @@ class Matching(Stage):
     name = "matching"
     version = 2
     Config = MatchingConfig
-    requires = ("features",)
-    outputs = ("database.db", "pairs.txt")
-    publish = {"database.db": "database.db"}
+    requires = (FeatureDatabase,)
+    produces = MatchDatabase
     uses_seed = True
     summary = "pair selection, SIFT matching and geometric verification into database.db"
 
     def run(self, ctx: StageContext, cfg: MatchingConfig) -> dict:
-        features = ctx.input("features") / "database.db"
+        upstream = ctx.input(FeatureDatabase)
+        features = upstream.database
         with read_only(features) as db:
             ids = image_ids(db)
         names = sorted(ids)
-        listing = read_json(ctx.input("features") / "images.json") or {}
+        listing = upstream.listing()
         method, pairs = choose_pairs(cfg, features, names, ctx.seed, bool(listing.get("ordered")))
         named = [(names[i], names[j]) for i, j in pairs]
-        (ctx.out / "pairs.txt").write_text("".join(f"{a} {b}\n" for a, b in named))
+        ctx.output.pairs.write_text("".join(f"{a} {b}\n" for a, b in named))
         id_pairs = [(ids[a], ids[b]) for a, b in named]
         folder = ctx.out / "blocks"
-        done = {pair for path in sorted(folder.glob("*.pkl")) for pair in read_block(path)}
+        done = _finished_pairs(folder, ctx)
         todo = [pair for pair in id_pairs if pair not in done]
         if done:
             ctx.log.info("matching: %d pairs already done, resuming", len(id_pairs) - len(todo))
         ctx.map(match_block, _blocks(todo, features, folder, cfg, ctx), desc="matching pairs",
                 done=lambda b: Path(b.out).exists(), size=lambda b: len(b.pairs))
-        database = ctx.out / "database.db"
+        database = ctx.output.database
         _write_database(features, folder, id_pairs, database)
         with opened(database) as db:
             matched = db.num_matched_image_pairs()
@@ -124,8 +124,21 @@ def _blocks(pairs: list[tuple[int, int]], features: Path, folder: Path, cfg: Mat
     for start in range(0, len(pairs), chunk):
         part = tuple(pairs[start:start + chunk])
         tag = zlib.crc32(repr(part).encode())  # names differ for different pairs, whatever the chunk size
-        blocks.append(Block(str(features), part, options, str(folder / f"{start:07d}-{tag:08x}.pkl")))
+        blocks.append(Block(str(features), part, options, str(folder / f"{start:07d}-{tag:08x}.npz")))
     return blocks
+
+
+def _finished_pairs(folder: Path, ctx: StageContext) -> set[tuple[int, int]]:
+    """Pairs in the block files a stopped run left; a file that is not a block (truncated, or put
+    there by someone else: it is read as data, never run) is removed and its pairs matched again."""
+    done = set()
+    for path in sorted(folder.glob("*.npz")):
+        try:
+            done.update(read_block(path))
+        except BlockError as exc:
+            ctx.log.warning("matching: %s; matching its pairs again", exc)
+            path.unlink()
+    return done
 
 
 def _write_database(features: Path, folder: Path, pairs: list[tuple[int, int]], database: Path) -> None:
@@ -134,7 +147,7 @@ def _write_database(features: Path, folder: Path, pairs: list[tuple[int, int]], 
 
     The disk is checked first: SQLite on a full disk is an error COLMAP does not recover from. Bound:
     the blocks' size, twice (SQLite's journal), plus the database and 4 MiB."""
-    files = sorted(folder.glob("*.pkl"))
+    files = sorted(folder.glob("*.npz"))
     need = 2 * sum(f.stat().st_size for f in files) + features.stat().st_size + (4 << 20)
     if shutil.disk_usage(database.parent).free < need:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(database.parent))

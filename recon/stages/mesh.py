@@ -3,12 +3,13 @@ cubes on the depth maps), cleaned and decimated; written as a vertex-coloured me
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
+from recon.files import write_bytes
 from recon.options import opt
+from recon.products import DenseScene, DepthMaps, FusedCloud, SurfaceMesh
 from recon.stage import Stage, StageContext, StageError, register
 from recon.surface.options import MeshOptions
 
@@ -18,32 +19,13 @@ class MeshConfig(MeshOptions):
     tsdf_max_views: int = opt(0, "tsdf: integrate at most this many depth maps, evenly spread (0 = all)", ge=0)
 
 
-def dense_views(dense: Path) -> list:
-    """Pinhole cameras (name, K, R, t, size) of the undistorted model, sorted by image name."""
-    import pycolmap
-
-    from recon.mvs.views import view_camera
-
-    rec = pycolmap.Reconstruction(str(dense / "sparse"))
-    views = [view_camera(img, rec.camera(img.camera_id)) for img in rec.images.values() if img.has_pose]
-    return sorted(views, key=lambda v: v.name)
-
-
-def scaled_to(view, width: int, height: int):
-    """The camera of a view for an image of ``width`` x ``height`` (depth maps are computed smaller)."""
-    sx, sy = width / view.width, height / view.height
-    K = np.diag([sx, sy, 1.0]) @ view.K
-    return replace(view, K=K, width=width, height=height)
-
-
 @register
 class Mesh(Stage):
     name = "mesh"
     version = 1
     Config = MeshConfig
-    requires = ("undistort", "mvs", "fusion")
-    outputs = ("mesh.ply",)
-    publish = {"mesh.ply": "mesh.ply"}
+    requires = (DenseScene, DepthMaps, FusedCloud)
+    produces = SurfaceMesh
     summary = "Poisson (default) or TSDF surface, trimmed, cleaned, decimated: mesh.ply"
 
     def run(self, ctx: StageContext, cfg: MeshConfig) -> dict:
@@ -57,9 +39,7 @@ class Mesh(Stage):
         if len(mesh.faces) == 0:
             raise StageError(f"mesh: the {cfg.method} surface is empty after trimming; lower "
                              "mesh.density_quantile or check dense/fused.ply")
-        tmp = ctx.out / ".mesh.ply"
-        tmp.write_bytes(mesh.export(file_type="ply"))
-        tmp.replace(ctx.out / "mesh.ply")
+        write_bytes(ctx.output.path, mesh.export(file_type="ply"))
         return {"method": cfg.method, "vertices": len(mesh.vertices), "faces": len(mesh.faces),
                 "watertight": bool(mesh.is_watertight)}
 
@@ -67,7 +47,7 @@ class Mesh(Stage):
         from recon._open3d import open3d
         from recon.surface.poisson import poisson_mesh
 
-        cloud = open3d().io.read_point_cloud(str(ctx.input("fusion") / "fused.ply"))
+        cloud = open3d().io.read_point_cloud(str(ctx.input(FusedCloud).path))
         points = np.asarray(cloud.points)
         if len(points) < 100 or not cloud.has_normals():
             raise StageError("mesh: dense/fused.ply has too few oriented points for Poisson meshing; "
@@ -79,20 +59,21 @@ class Mesh(Stage):
         import cv2
 
         from recon.mvs.colmap_io import read_depth_map
+        from recon.mvs.views import scaled_to
         from recon.surface.tsdf import tsdf_mesh
 
-        dense = ctx.input("undistort") / "dense"
-        stereo = ctx.input("mvs") / "stereo"
-        views = dense_views(dense)
+        dense = ctx.input(DenseScene)
+        depth_maps = ctx.input(DepthMaps)
+        views = dense.views()
         if cfg.tsdf_max_views and len(views) > cfg.tsdf_max_views:
             views = [views[i] for i in np.linspace(0, len(views) - 1, cfg.tsdf_max_views).round().astype(int)]
         depths, images, cameras = [], [], []
         for view in views:
-            path = stereo / "depth_maps" / f"{view.name}.geometric.bin"
+            path = depth_maps.depth_map(view.name)
             if not path.exists():
                 continue
             depth = read_depth_map(path)
-            image = cv2.cvtColor(cv2.imread(str(dense / "images" / view.name)), cv2.COLOR_BGR2RGB)
+            image = cv2.cvtColor(cv2.imread(str(dense.images / view.name)), cv2.COLOR_BGR2RGB)
             image = cv2.resize(image, (depth.shape[1], depth.shape[0]), interpolation=cv2.INTER_AREA)
             depths.append(depth)
             images.append(image)

@@ -10,8 +10,10 @@ from typing import Literal
 
 import numpy as np
 
+from recon.mvs.colmap_cuda import cuda_available, run_patch_match
 from recon.mvs.options import MVSOptions
 from recon.options import opt
+from recon.products import DenseScene, DepthMaps
 from recon.stage import Stage, StageContext, StageError, register
 
 
@@ -22,15 +24,11 @@ class MvsConfig(MVSOptions):
                 "auto = colmap-cuda when available, else cpu")
 
 
-def colmap_cuda_available() -> bool:
-    """pycolmap built with CUDA and a GPU it can use (`pip install recon[cuda]`)."""
-    try:
-        import pycolmap
-
-        devices = getattr(pycolmap, "get_num_cuda_devices", lambda: 1)  # absent in some builds
-        return bool(pycolmap.has_cuda) and devices() > 0
-    except ImportError:
-        return False
+def backend_of(cfg: MvsConfig) -> str:
+    """The backend that runs: ``auto`` resolved on this machine (part of the cache key)."""
+    if cfg.backend == "auto":
+        return "colmap-cuda" if cuda_available() else "cpu"
+    return cfg.backend
 
 
 def _view_pass(task) -> str:
@@ -49,27 +47,27 @@ class Mvs(Stage):
     name = "mvs"
     version = 1
     Config = MvsConfig
-    requires = ("undistort",)
-    outputs = ("stereo/depth_maps/<image>.{photometric,geometric}.bin", "stereo/normal_maps/...")
-    publish = {"stereo": "dense/stereo"}
+    requires = (DenseScene,)
+    produces = DepthMaps
     uses_seed = True
     summary = "PatchMatch multi-view stereo: per-view depth and normal maps, consistency-filtered"
 
+    def fingerprint(self, ctx: StageContext, cfg: MvsConfig):
+        """The resolved backend: depth maps made by COLMAP's CUDA PatchMatch are not recon's."""
+        return {"backend": backend_of(cfg)}
+
     def run(self, ctx: StageContext, cfg: MvsConfig) -> dict:
-        dense = ctx.input("undistort") / "dense"
-        stereo = ctx.out / "stereo"
+        dense = ctx.input(DenseScene)
+        stereo = ctx.output.folder
         stereo.mkdir(exist_ok=True)
         for name in ("patch-match.cfg", "fusion.cfg"):
-            if (dense / "stereo" / name).exists():
-                shutil.copyfile(dense / "stereo" / name, stereo / name)
-        backend = cfg.backend
-        if backend == "auto":
-            backend = "colmap-cuda" if colmap_cuda_available() else "cpu"
-        if backend == "colmap-cuda":
+            if (dense.stereo_configs / name).exists():
+                shutil.copyfile(dense.stereo_configs / name, stereo / name)
+        if backend_of(cfg) == "colmap-cuda":
             return self._colmap_cuda(ctx, dense, stereo, cfg)
         return self._cpu(ctx, dense, stereo, cfg)
 
-    def _cpu(self, ctx: StageContext, dense: Path, stereo: Path, cfg: MvsConfig) -> dict:
+    def _cpu(self, ctx: StageContext, dense: DenseScene, stereo: Path, cfg: MvsConfig) -> dict:
         import pycolmap
 
         from recon.mvs.stereo import map_path
@@ -78,35 +76,26 @@ class Mvs(Stage):
         workers = max(1, min(ctx.executor.workers, len(os.sched_getaffinity(0))))
         threads = cfg.num_threads or max(1, len(os.sched_getaffinity(0)) // workers)
         options = replace(cfg, seed=cfg.seed + ctx.seed, num_threads=threads)
-        problems = select_problems(pycolmap.Reconstruction(str(dense / "sparse")), options)
+        problems = select_problems(pycolmap.Reconstruction(str(dense.model)), options)
         if not problems:
             raise StageError("mvs: no view has source views with enough shared points and baseline")
         for pass_name in ("photometric", "geometric"):  # every view's photometric maps before any geometric
-            ctx.map(_view_pass, [(pass_name, dense, p, options, stereo) for p in problems],
+            ctx.map(_view_pass, [(pass_name, dense.folder, p, options, stereo) for p in problems],
                     desc=f"mvs {pass_name}", done=lambda t: map_path(stereo, "depth", t[2].ref, t[0]).exists())
         return _coverage(stereo, [p.ref for p in problems], backend="cpu")
 
-    def _colmap_cuda(self, ctx: StageContext, dense: Path, stereo: Path, cfg: MvsConfig) -> dict:
+    def _colmap_cuda(self, ctx: StageContext, dense: DenseScene, stereo: Path, cfg: MvsConfig) -> dict:
         """Thin adapter: COLMAP's own PatchMatch on the GPU, writing into this stage's folder."""
-        import pycolmap
-
-        if not colmap_cuda_available():
+        if not cuda_available():
             raise StageError("mvs.backend: 'colmap-cuda' needs `pip install recon[cuda]` (pycolmap-cuda12) and "
                              "an NVIDIA GPU; use 'cpu' or 'auto'")
-        scratch = ctx.out / "colmap"
+        scratch = ctx.out / "colmap"  # COLMAP's layout: the undistorted images and model, this stage's stereo/
         scratch.mkdir(exist_ok=True)
-        for name in ("images", "sparse"):
-            link = scratch / name
+        for target in (dense.images, dense.model, stereo):
+            link = scratch / target.name
             if not link.exists():
-                link.symlink_to(dense / name)
-        if not (scratch / "stereo").exists():
-            (scratch / "stereo").symlink_to(stereo)
-        opts = pycolmap.PatchMatchOptions()
-        opts.max_image_size = cfg.max_image_size
-        opts.window_radius = cfg.window_radius
-        opts.geom_consistency = cfg.geometric
-        opts.filter = True
-        pycolmap.patch_match_stereo(str(scratch))
+                link.symlink_to(target)
+        run_patch_match(scratch, replace(cfg, seed=cfg.seed + ctx.seed))
         names = [p.stem.removesuffix(".geometric") for p in (stereo / "depth_maps").glob("*.geometric.bin")]
         return _coverage(stereo, names, backend="colmap-cuda")
 

@@ -13,9 +13,11 @@ from __future__ import annotations
 import numpy as np
 from PIL import Image
 
+from recon.files import write_json
 from recon.panorama import PanoramaError, PanoramaOptions, stitch
+from recon.products import Panorama as PanoramaProduct
+from recon.products import Photos
 from recon.stage import Stage, StageContext, StageError, register
-from recon.workspace import read_json, write_json
 
 
 @register
@@ -23,15 +25,15 @@ class PanoramaStage(Stage):
     name = "panorama"
     version = 1
     Config = PanoramaOptions
-    requires = ("ingest",)
-    outputs = ("panorama.jpg", "panorama.json")
-    publish = {"panorama.jpg": "panorama.jpg", "panorama.json": "panorama.json"}
+    requires = (Photos,)
+    produces = PanoramaProduct
     summary = "stitch photos from a rotating camera into a spherical, cylindrical or plane panorama"
 
     def run(self, ctx: StageContext, cfg: PanoramaOptions) -> dict:
-        listing = read_json(ctx.input("ingest") / "images.json")
+        photos = ctx.input(Photos)
+        listing = photos.listing()
         entries = listing["images"]
-        folder = ctx.input("ingest") / "images"
+        folder = photos.images
         images = [np.asarray(Image.open(folder / e["name"]).convert("RGB")) for e in entries]
         try:
             pano = stitch(images, cfg, [e.get("focal_px") for e in entries], [e["name"] for e in entries])

@@ -32,16 +32,16 @@ import numpy as np
 from PIL import Image
 
 from recon.config import ConfigError, build, to_dict
+from recon.files import atomic, read_json, write_json
 from recon.imaging.hdr import exposure_time, group_by_exposure, group_by_name, merge_brackets
 from recon.imaging.intrinsics import Intrinsics
 from recon.imaging.masks import load_mask, save_mask
 from recon.imaging.ops import OPS, Step, apply_chain
 from recon.options import opt
+from recon.products import Calibration, Photos, PreparedPhotos
 from recon.sparse.database import camera_params
 from recon.sparse.photos import read_upright
 from recon.stage import Stage, StageContext, StageError, register
-from recon.stages.calibrate import calibrated_camera
-from recon.workspace import read_json, write_json
 
 
 @dataclass(frozen=True)
@@ -124,9 +124,8 @@ class Preprocess(Stage):
     name = "preprocess"
     version = 1
     Config = PreprocessConfig
-    requires = ("ingest", "calibrate")
-    outputs = ("images/", "images_geometric/", "masks/", "images.json")
-    publish = {"images_geometric": "images", "masks": "masks"}
+    requires = (Photos, Calibration)
+    produces = PreparedPhotos
     summary = "2D operations (resize, undistort, denoise, contrast, deblur), bracket merging and masks"
 
     def fingerprint(self, ctx: StageContext, cfg: PreprocessConfig):
@@ -136,23 +135,23 @@ class Preprocess(Stage):
         return [[p.relative_to(folder).as_posix(), ctx.digest(p)] for p in sorted(folder.rglob("*.png"))]
 
     def run(self, ctx: StageContext, cfg: PreprocessConfig) -> dict:
-        ingest = ctx.input("ingest")
-        listing = read_json(ingest / "images.json")
-        calibration = calibrated_camera(ctx.input("calibrate"))
+        photos = ctx.input(Photos)
+        listing = photos.listing()
+        calibration = _calibration(ctx.input(Calibration))
         steps = tuple(cfg.steps())
         if calibration is None and any(name == "undistort" for name, _ in steps):
             raise StageError("preprocess.ops: 'undistort' needs the photos' distortion, which only a calibration "
                              "gives: set calibrate.images to a folder of chessboard photos")
         sources = _source_cameras(listing, calibration)
-        views = _views(listing, cfg.brackets, ingest / "images")
+        views = _views(listing, cfg.brackets, photos.images)
         geometric = any(OPS[name].geometric for name, _ in steps)
         write_images = bool(steps) or cfg.brackets is not None
         write_geometric = geometric or cfg.brackets is not None
         for folder, written in (("images", write_images), ("images_geometric", write_geometric)):
             if not written:
-                _link(ctx.out / folder, ingest / "images")
+                _link(ctx.out / folder, photos.images)
         masks = _mask_folder(ctx, cfg)
-        tasks = [_Task(view, tuple(ingest / "images" / m for m in view.members), sources[view.camera], steps,
+        tasks = [_Task(view, tuple(photos.images / m for m in view.members), sources[view.camera], steps,
                        cfg.brackets, write_images, write_geometric, _mask_of(masks, view), ctx.out,
                        cfg.jpeg_quality) for view in views]
         if write_images or masks is not None:
@@ -161,7 +160,7 @@ class Preprocess(Stage):
         else:
             records = [{"camera": _camera_json(t.camera), "masked": False} for t in tasks]
         result = _listing(listing, views, records, calibration)
-        write_json(ctx.out / "images.json", result)
+        ctx.output.write_listing(result)
         shutil.rmtree(ctx.out / "items", ignore_errors=True)
         cams = result["cameras"]
         return {"images": len(views), "operations": len(steps), "merged_brackets": len(listing["images"]) - len(views),
@@ -192,6 +191,14 @@ def _mask_of(masks: Path | None, view: _View) -> Path | None:
         if path.is_file():
             return path
     return None
+
+
+def _calibration(product: Calibration) -> tuple[Intrinsics, str] | None:
+    """The calibrated camera and its ``use`` (fixed / prior), or None when nothing was calibrated."""
+    data = product.read()
+    if data is None:
+        return None
+    return Intrinsics(data["model"], data["width"], data["height"], tuple(data["params"])), data["use"]
 
 
 def _source_cameras(listing: dict, calibration: tuple[Intrinsics, str] | None) -> dict[int, Intrinsics]:
@@ -324,8 +331,6 @@ def _read_view(task: _Task) -> np.ndarray:
 
 def _save(path: Path, image: np.ndarray, jpeg_quality: int) -> None:
     """Write ``image`` in the format its name says, atomically."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{path.suffix}")
     jpeg = path.suffix.lower() in (".jpg", ".jpeg")
-    Image.fromarray(image).save(tmp, **({"quality": jpeg_quality} if jpeg else {}))
-    tmp.replace(path)
+    with atomic(path) as tmp:
+        Image.fromarray(image).save(tmp, **({"quality": jpeg_quality} if jpeg else {}))

@@ -11,10 +11,23 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from recon.options import opt
-from recon.stage import REGISTRY, Stage, StageContext, StageError, register
+from recon.products import (
+    DenseScene,
+    DepthMaps,
+    FusedCloud,
+    MatchDatabase,
+    SparseModel,
+    SurfaceMesh,
+    TexturedModel,
+)
+from recon.products import Report as ReportProduct
+from recon.stage import REGISTRY, Stage, StageContext, StageError, producer, register
 
-#: workspace paths the report shows when a current stage published them
-OPTIONAL = {"stereo": "dense/stereo", "fused": "dense/fused.ply", "mesh": "mesh.ply", "textured": "textured.glb"}
+#: (Sources field, product, its file) the report shows when a current stage made them; a later entry
+#: wins (texture's vertex-coloured mesh.ply over mesh's)
+OPTIONAL = [("stereo", DepthMaps, lambda p: p.folder), ("fused", FusedCloud, lambda p: p.path),
+            ("mesh", SurfaceMesh, lambda p: p.path), ("textured", TexturedModel, lambda p: p.glb),
+            ("mesh", TexturedModel, lambda p: p.mesh)]
 
 
 @dataclass(frozen=True)
@@ -34,10 +47,9 @@ class Report(Stage):
     name = "report"
     version = 1
     Config = ReportConfig
-    requires = ("matching", "sfm")
-    optional = ("undistort", "mvs", "fusion", "mesh", "texture")
-    outputs = ("report.html",)
-    publish = {"report.html": "report.html"}
+    requires = (MatchDatabase, SparseModel)
+    optional = (DenseScene, DepthMaps, FusedCloud, SurfaceMesh, TexturedModel)
+    produces = ReportProduct
     summary = "report.html: run summary, per-photo table, plots, depth maps, mesh figures, 3D viewer"
 
     def fingerprint(self, ctx: StageContext, cfg: ReportConfig):
@@ -50,10 +62,11 @@ class Report(Stage):
         ws = ctx.workspace
         optional = {attr: path for _, _, (attr, path) in _current_optional(ws)}
         lock = ws.meta / "lock"
+        sparse = ctx.input(SparseModel)
         sources = Sources(
-            database=ctx.input("matching") / "database.db",
-            model=ctx.input("sfm") / "sparse" / "0",
-            models_json=ctx.input("sfm") / "models.json",
+            database=ctx.input(MatchDatabase).database,
+            model=sparse.model(),
+            models_json=sparse.root / sparse.REPORT,
             stages=[m for m in (ws.manifest(n, k) for n, k in _current_stages(ws) if n != self.name) if m],
             run_started=lock.stat().st_mtime if lock.exists() else None,
             config=ctx.settings,
@@ -62,8 +75,8 @@ class Report(Stage):
         limits = Limits(max_points=cfg.max_points, max_mesh_faces=cfg.max_mesh_faces,
                         max_glb_bytes=int(cfg.max_glb_mb * 1e6), thumbnails=cfg.thumbnails, viewer=cfg.viewer)
         report = build_report(sources, title=f"recon report: {ws.root.name}", evaluation=evaluation, limits=limits)
-        (ctx.out / "report.html").write_text(report.html, encoding="utf-8")
-        ctx.log.info("report: %s (%.1f MB)", ws.root / "report.html", len(report.html) / 1e6)
+        ctx.output.path.write_text(report.html, encoding="utf-8")
+        ctx.log.info("report: %s (%.1f MB)", ws.root / ReportProduct.publish["report.html"], len(report.html) / 1e6)
         return {**report.summary, "megabytes": round(len(report.html) / 1e6, 2)}
 
 
@@ -86,23 +99,22 @@ def _current_stages(ws) -> list[tuple[str, str]]:
 
 def _current_optional(ws) -> list[tuple[str, str, tuple[str, Path]]]:
     """(stage, key, (Sources field, path in its output)) for each optional output a current stage made."""
+    current = dict(_current_stages(ws))
     found = []
-    for name, key in _current_stages(ws):
-        for rel, link in REGISTRY[name].publish.items():
-            for attr, wanted in OPTIONAL.items():
-                path = ws.output_dir(name, key) / rel
-                if link == wanted and path.exists():
-                    found.append((name, key, (attr, path)))
+    for attr, product, file in OPTIONAL:
+        name = producer(product)
+        if name in current:
+            path = file(product(ws.output_dir(name, current[name])))
+            if path.exists():
+                found.append((name, current[name], (attr, path)))
     return found
 
 
 def _evaluate(ctx: StageContext, cfg: ReportConfig) -> dict:
-    from recon import api
-    from recon.config import ConfigError
-    from recon.workspace import WorkspaceError
+    from recon.eval.workspace import EvaluationError, evaluate
 
     gt = ctx.resolve(cfg.gt)
     try:
-        return api.evaluate(ctx.workspace.root, gt)
-    except (ConfigError, WorkspaceError, FileNotFoundError, ValueError) as exc:
+        return evaluate(ctx.workspace.root, gt)
+    except (EvaluationError, FileNotFoundError) as exc:
         raise StageError(f"report.gt: cannot evaluate against {gt}: {exc}") from None

@@ -2,6 +2,10 @@
 
 Cameras come from the database (preprocess's intrinsics); when they are a calibration used as
 ``fixed`` (calibrate.use), bundle adjustment refines no intrinsics.
+
+Last step: with enough GPS-tagged photos the models are georeferenced (:mod:`recon.sparse.georeference`):
+written in local East-North-Up metres, so every later stage's output is too; ``georeference.json``
+records the frame, the similarity applied and the GPS residuals.
 """
 
 from __future__ import annotations
@@ -9,10 +13,12 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Literal
 
+from recon.files import write_json
 from recon.options import opt
-from recon.sparse import mapping
+from recon.products import MatchDatabase, PreparedPhotos, SparseModel
+from recon.sparse import georeference, lens, mapping
+from recon.sparse.frame import level_model
 from recon.stage import Stage, StageContext, StageError, register
-from recon.workspace import read_json, write_json
 
 
 @dataclass(frozen=True)
@@ -35,35 +41,48 @@ class SfmConfig:
               "better (fountain_p11: AUC@5 93.3 -> 98.5); never while the model grows (unstable)")
     deterministic: bool = opt(False, "single-threaded mapping and bundle adjustment: bit-identical re-runs "
                                      "(multi-threaded runs agree to ~1e-3 of the camera spread), slower")
+    georeference: Literal["auto", "off"] = opt(
+        "auto", "auto: models in local East-North-Up metres when at least 3 registered photos, and more than "
+                "half, have EXIF GPS (robust fit to the GPS positions); off: the mapper's arbitrary frame")
+    gps_sigma: float = opt(0.0, "GPS accuracy in metres for every photo (0: each photo's GPSHPositioningError, "
+                                "else GPSDOP, else 5 m); a photo farther than 3.4 sigma is an outlier", ge=0)
 
 
 @register
 class Sfm(Stage):
     name = "sfm"
-    version = 2
+    version = 4
     Config = SfmConfig
-    requires = ("preprocess", "matching")
-    outputs = ("sparse/<k>/{cameras,images,points3D}.bin", "models.json")
-    publish = {"sparse": "sparse"}
+    requires = (PreparedPhotos, MatchDatabase)
+    produces = SparseModel
     uses_seed = True
     summary = "incremental (or global) SfM with bundle adjustment; every model kept, largest as sparse/0"
 
     def run(self, ctx: StageContext, cfg: SfmConfig) -> dict:
-        database = ctx.input("matching") / "database.db"
-        images = ctx.input("preprocess") / "images_geometric"  # original colours for the points
-        cameras = read_json(ctx.input("preprocess") / "images.json")["cameras"]
+        database = ctx.input(MatchDatabase).database
+        photos = ctx.input(PreparedPhotos)
+        images = photos.geometric  # original colours for the points
+        listing = photos.listing()
+        cameras = listing["cameras"]
         if cameras and all(c["fixed"] for c in cameras):
             ctx.log.info("sfm: calibrated cameras kept fixed")
             cfg = replace(cfg, refine_focal_length=False, refine_principal_point=False, refine_extra_params=False)
         models = mapping.reconstruct(database, images, cfg, ctx.seed)
-        report = mapping.registration_report(database, models, cfg.min_num_matches)
+        report = mapping.registration_report(database, models, cfg.min_num_matches, cfg.init_min_tri_angle)
         if not models:
             raise StageError(f"sfm: no model could be built. {report['reason']}")
+        georef = _georeference(ctx, cfg, models, listing["images"])
+        if not georef["georeferenced"]:  # georeferenced models are in ENU, already up along +Z
+            report["frame"] = {"up": "+Z, the photos' average up",
+                               "rotations_from_mapper": [level_model(rec).tolist() for rec in models]}
+        else:
+            report["frame"] = {"up": "+Z, local East-North-Up (georeference.json)"}
         for k, rec in enumerate(models):
-            path = ctx.out / "sparse" / str(k)
+            path = ctx.output.model(k)
             path.mkdir(parents=True, exist_ok=True)
             rec.write(str(path))
-        write_json(ctx.out / "models.json", report)
+        ctx.output.write_report(report)
+        write_json(ctx.output.georeference, georef)
         best = models[0]
         total = report["total_images"]
         if len(models) > 1:
@@ -71,5 +90,30 @@ class Sfm(Stage):
                             len(models), ", ".join(str(m.num_reg_images()) for m in models))
         for name, why in report["unregistered"].items():
             ctx.log.warning("not registered: %s: %s", name, why)
+        for camera in best.cameras.values():
+            if (why := lens.pinhole_fit_warning(camera)) is not None:
+                ctx.log.warning("sfm: %s", why)
         return {"models": len(models), "registered": best.num_reg_images(), "images": total,
-                "points": best.num_points3D(), "mean_reproj_error": round(best.compute_mean_reprojection_error(), 3)}
+                "points": best.num_points3D(), "mean_reproj_error": round(best.compute_mean_reprojection_error(), 3),
+                "georeferenced": georef["georeferenced"]}
+
+
+def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[dict]) -> dict:
+    """Georeference the models in place (sfm.georeference) and log what was done; georeference.json."""
+    if cfg.georeference == "off":
+        return {"georeferenced": False, "reason": "sfm.georeference is off"}
+    gps = georeference.gps_positions(images)
+    if not gps:
+        return {"georeferenced": False, "reason": "no photo has a GPS position with altitude in its EXIF"}
+    result = georeference.georeference(models, gps, sigma=cfg.gps_sigma, seed=ctx.seed)
+    if not result["georeferenced"]:
+        ctx.log.warning("sfm: not georeferenced: %s", result["reason"])
+        return result
+    origin, residuals, scale_std = result["origin"], result["residuals_m"], result["scale_relative_std"]
+    ctx.log.info("sfm: georeferenced in local ENU metres around lat %.6f, lon %.6f: GPS residuals median %.2f m, "
+                 "90th percentile %.2f m; scale uncertainty %s", origin["lat"], origin["lon"], residuals["median"],
+                 residuals["p90"], "unknown (3 photos)" if scale_std is None else f"{100 * scale_std:.2f} %")
+    if result["outliers"]:
+        ctx.log.warning("sfm: GPS of %d photo(s) disagrees with the model (left out of the fit): %s",
+                        len(result["outliers"]), ", ".join(result["outliers"]))
+    return result

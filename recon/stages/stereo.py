@@ -23,11 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.files import write_json
 from recon.options import opt
+from recon.products import DenseScene, Photos, PreparedPhotos, SparseModel, StereoDepth
 from recon.stage import Stage, StageContext, StageError, register
 from recon.stereo.calibration import StereoCalibration
 from recon.stereo.options import StereoOptions
-from recon.workspace import read_json, write_json
 
 MIN_COVERAGE = 0.01
 
@@ -77,11 +78,9 @@ class Stereo(Stage):
     name = "stereo"
     version = 1
     Config = StereoConfig
-    requires = ("ingest",)
-    optional = ("preprocess", "sfm", "undistort")
-    outputs = ("stereo/depth.{npy,bin}", "stereo/depth_preview.png", "stereo/cloud.ply", "stereo/calibration.json",
-               "stereo/summary.json")
-    publish = {"stereo": "stereo"}
+    requires = (Photos,)
+    optional = (PreparedPhotos, SparseModel, DenseScene)
+    produces = StereoDepth
     summary = "two-view stereo (SGBM + left-right check): depth map and point cloud of one photo pair"
 
     def fingerprint(self, ctx: StageContext, cfg: StereoConfig):
@@ -111,7 +110,7 @@ class Stereo(Stage):
             raise StageError(f"stereo: {names} gave depth at {100 * result.coverage:.2f}% of "
                              "the pixels; check that the photos overlap, the cameras (stereo.calibration) and "
                              "the depth range (stereo.depth_min/depth_max or stereo.num_disparities)")
-        out = ctx.out / "stereo"
+        out = ctx.output.folder
         write_depth(out, result.depth)
         points, colours = point_cloud(result, pair.pose)
         write_ply(out / "cloud.ply", points, colours)
@@ -133,7 +132,8 @@ def _calibrated_pair(ctx: StageContext, cfg: StereoConfig, path: Path) -> _Pair:
     """Mode (a): the named ingested photos with the calibration file's cameras."""
     from recon.stereo.calibration import read_calibration
 
-    listed = [i["name"] for i in read_json(ctx.input("ingest") / "images.json")["images"]]
+    photos = ctx.input(Photos)
+    listed = [i["name"] for i in photos.listing()["images"]]
     for key, name in (("left", cfg.left), ("right", cfg.right)):
         if not name:
             raise StageError(f"stereo.{key}: with stereo.calibration, name both photos of the pair "
@@ -144,7 +144,7 @@ def _calibrated_pair(ctx: StageContext, cfg: StereoConfig, path: Path) -> _Pair:
         calib = read_calibration(path)
     except ValueError as exc:
         raise StageError(f"stereo.calibration: {exc}") from None
-    images = ctx.input("ingest") / "images"
+    images = photos.images
     left, right = _read_photo(images / cfg.left), _read_photo(images / cfg.right)
     try:
         calib = calib.fitted(left.shape[1::-1], right.shape[1::-1])
@@ -159,11 +159,11 @@ def _model_pair(ctx: StageContext, cfg: StereoConfig) -> _Pair:
 
     from recon.stereo import pairs
 
-    if "undistort" in ctx.upstream:
-        dense = ctx.input("undistort") / "dense"
-        model, images = dense / "sparse", dense / "images"
+    if ctx.has(DenseScene):
+        dense = ctx.input(DenseScene)
+        model, images = dense.model, dense.images
     else:
-        model, images = ctx.input("sfm") / "sparse" / "0", ctx.input("preprocess") / "images_geometric"
+        model, images = ctx.input(SparseModel).model(), ctx.input(PreparedPhotos).geometric
     rec = pycolmap.Reconstruction(str(model))
     try:
         views = pairs.model_views(rec)

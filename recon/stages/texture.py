@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from recon.options import opt
+from recon.products import DenseScene, SurfaceMesh, TexturedModel
 from recon.stage import Stage, StageContext, StageError, register
 from recon.surface.options import TextureOptions
 
@@ -31,28 +32,25 @@ class Texture(Stage):
     name = "texture"
     version = 1
     Config = TextureConfig
-    requires = ("undistort", "mesh")
-    outputs = ("textured.glb", "textured.obj", "textured.mtl", "textured.png", "mesh.ply")
-    publish = {"textured.glb": "textured.glb", "textured.obj": "textured.obj", "textured.mtl": "textured.mtl",
-               "textured.png": "textured.png", "mesh.ply": "mesh.ply"}
+    requires = (DenseScene, SurfaceMesh)
+    produces = TexturedModel
     summary = "texture atlas from the photos with seam levelling: textured.glb, textured.obj"
 
     def run(self, ctx: StageContext, cfg: TextureConfig) -> dict:
         import cv2
         import trimesh
 
-        from recon.stages.mesh import dense_views
         from recon.surface.cleanup import decimate
         from recon.surface.texture import texture_mesh
 
-        dense = ctx.input("undistort") / "dense"
-        mesh = trimesh.load(ctx.input("mesh") / "mesh.ply", process=False)
+        dense = ctx.input(DenseScene)
+        mesh = trimesh.load(ctx.input(SurfaceMesh).path, process=False)
         if cfg.max_faces and len(mesh.faces) > cfg.max_faces:
             mesh = decimate(mesh, cfg.max_faces)
-        views = dense_views(dense)
+        views = dense.views()
         if not views:
             raise StageError("texture: the undistorted model has no registered photo")
-        images = [cv2.cvtColor(cv2.imread(str(dense / "images" / v.name)), cv2.COLOR_BGR2RGB) for v in views]
+        images = [cv2.cvtColor(cv2.imread(str(dense.images / v.name)), cv2.COLOR_BGR2RGB) for v in views]
         textured = texture_mesh(mesh, images, views, cfg)
         sizes = write_exports(textured, ctx.out)
         seen = float(np.mean(textured.face_view >= 0))

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from recon.options import opt
+from recon.products import DenseScene, PreparedPhotos, SparseModel
 from recon.stage import Stage, StageContext, register
 
 
@@ -24,9 +25,8 @@ class Undistort(Stage):
     name = "undistort"
     version = 1
     Config = UndistortConfig
-    requires = ("preprocess", "sfm")
-    outputs = ("dense/images/", "dense/sparse/", "dense/stereo/{patch-match,fusion}.cfg")
-    publish = {"dense/images": "dense/images", "dense/sparse": "dense/sparse"}
+    requires = (PreparedPhotos, SparseModel)
+    produces = DenseScene
     summary = "undistorted pinhole images and model in COLMAP's dense workspace layout"
 
     def run(self, ctx: StageContext, cfg: UndistortConfig) -> dict:
@@ -36,9 +36,9 @@ class Undistort(Stage):
         opts.blank_pixels = cfg.blank_pixels
         if cfg.max_image_size:
             opts.max_image_size = cfg.max_image_size
-        dense = ctx.out / "dense"
-        pycolmap.undistort_images(str(dense), str(ctx.input("sfm") / "sparse" / "0"),
-                                  str(ctx.input("preprocess") / "images_geometric"), undistort_options=opts)
-        rec = pycolmap.Reconstruction(str(dense / "sparse"))
+        dense = ctx.output
+        pycolmap.undistort_images(str(dense.folder), str(ctx.input(SparseModel).model()),
+                                  str(ctx.input(PreparedPhotos).geometric), undistort_options=opts)
+        rec = pycolmap.Reconstruction(str(dense.model))
         cam = next(iter(rec.cameras.values()))
         return {"images": rec.num_reg_images(), "size": f"{cam.width}x{cam.height}"}

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
+import numpy as np
 import trimesh
 from trimesh.exchange.obj import export_obj
 
@@ -14,10 +15,19 @@ from recon.surface.texture.model import TexturedMesh
 log = logging.getLogger(__name__)
 
 
+#: recon's frame has its up along +Z (recon/sparse/frame.py); glTF's is +Y: (x, y, z) -> (x, z, -y)
+Z_UP_TO_GLTF = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
+
+
 def write_glb(textured: TexturedMesh, path: str | Path) -> Path:
-    """A GLB holding the mesh, its UVs and the atlas (PNG) as the base colour texture."""
+    """A GLB holding the mesh, its UVs and the atlas (PNG) as the base colour texture, in glTF's
+    Y-up frame; the material is double-sided where the surface is open (a viewer would otherwise
+    cull the back of every face seen from outside the captured side)."""
     path = Path(path)
-    path.write_bytes(textured.to_trimesh().export(file_type="glb"))
+    mesh = textured.to_trimesh()
+    mesh.apply_transform(Z_UP_TO_GLTF)
+    mesh.visual.material.doubleSided = not mesh.is_watertight
+    path.write_bytes(mesh.export(file_type="glb"))
     log.info("wrote %s (%d faces, %d x %d texture)", path, len(textured.faces), textured.texture.shape[1],
              textured.texture.shape[0])
     return path

@@ -183,6 +183,14 @@ def _render(out: Path, scene: Scene, cams: dict[str, WideView], seed: int, path:
     return info
 
 
+def load_views(root: str | Path) -> dict[str, WideView]:
+    """The fisheye / equirectangular views of a scene written here, keyed by image name; empty for a
+    pinhole scene (its ``cameras.json`` frames carry no ``model``)."""
+    frames = json.loads((Path(root) / "gt" / "cameras.json").read_text())["frames"]
+    return {f["name"]: WideView(f["model"], tuple(f["params"]), f["width"], f["height"], np.array(f["R"]),
+                                np.array(f["t"])) for f in frames if "model" in f}
+
+
 def range_points(distance: np.ndarray, view: WideView) -> np.ndarray:
     """World points of a range map's hit pixels (their centres' rays)."""
     v, u = np.nonzero(distance > 0)

@@ -332,7 +332,7 @@ def transient_car(rng: np.random.Generator) -> Setup:
     stone = tex(mottled(256, 256, [(172, 166, 154), (140, 136, 128)], rng, 0.3, beta=0.85))
     wall = tex(windows(512, 512, rng, plaster(512, 512, (196, 184, 150), 9.0, rng), (128, 170), (56, 100)))
     paving = tex(tiles(512, 512, rng, 64, [(120, 118, 126), (136, 130, 122)], spread=0.06))
-    parts = [ground("ground", 9.0, paving, 80.0),
+    parts = [ground("ground", 20.0, paving, 80.0),
              *block("building", rect(10.0, 4.0, 0.0, (0.0, 3.0)), 0.0, 5.0, wall, stone, d),
              *sideways("steps", staircase(5, 0.16, 0.3), [0.0, -0.5, 0.0], np.pi / 2, 3.0, stone, stone, d)]
     paint = tex(plaster(128, 128, (170, 30, 36), 6.0, rng, beta=0.8))

@@ -3,6 +3,7 @@ a fused cloud and a mesh on the surface, textured exports that load."""
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -114,6 +115,31 @@ def test_textured_exports_load_with_their_texture(dense_workspace):
     assert np.asarray(obj.visual.material.image).shape == np.asarray(Image.open(dense_workspace / "textured.png")).shape
     colored = trimesh.load(dense_workspace / "mesh.ply")
     assert colored.visual.vertex_colors[:, :3].std() > 10
+
+
+def test_textured_glb_is_the_right_way_up(dense_workspace):
+    """The photos' up is -Y in COLMAP's mapper frame (its first camera's: y points down the image);
+    glTF viewers take +Y as up. The scene's ground (a 6 x 6 square, objects standing on it) is then
+    the GLB's thinnest direction, along Y, and lies at the bottom: the lowest vertices are on one flat
+    level (the ground), the highest spread over the objects' tops. Upside down, it is the reverse."""
+    import trimesh
+
+    glb = trimesh.load(dense_workspace / "textured.glb", force="mesh")
+    vertices = np.asarray(glb.vertices)
+    thinnest = np.linalg.svd(vertices - vertices.mean(0), full_matrices=False)[2][2]
+    assert abs(thinnest[1]) > 0.95, thinnest
+    p1, p5, p95, p99 = np.percentile(vertices[:, 1], [1, 5, 95, 99])
+    assert p5 - p1 < (p99 - p95) / 5, (p1, p5, p95, p99)
+    gltf = json.loads(trimesh.util.decode_text(_glb_json(dense_workspace / "textured.glb")))
+    assert gltf["materials"][0].get("doubleSided") is True  # an open surface: seen from both sides
+
+
+def _glb_json(path: Path) -> bytes:
+    """The JSON chunk of a GLB file (header 12 bytes, then chunk length, type 'JSON', data)."""
+    data = path.read_bytes()
+    length = int.from_bytes(data[12:16], "little")
+    assert data[16:20] == b"JSON"
+    return data[20:20 + length]
 
 
 def test_mesh_is_reproducible(dense_workspace, small_scene, tmp_path):

@@ -124,7 +124,7 @@ def test_focal_estimated_when_photo_has_no_exif(sparse_workspace, holdout_scene,
 
 
 def test_reference_untouched_and_its_change_makes_localize_stale(sparse_workspace, holdout_scene, tmp_path):
-    from recon.workspace import file_digest
+    from recon.files import file_digest
 
     reference = tmp_path / "ref"  # a copy: the shared workspace must not change
     shutil.copytree(sparse_workspace, reference, ignore=shutil.ignore_patterns(".recon"))

@@ -11,6 +11,7 @@ one is 18 px away), which bounds what the localized views can reach.
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 import pycolmap
@@ -21,7 +22,7 @@ from recon.eval.groundtruth import load_cameras
 from recon.geometry.transforms import align_similarity, camera_center, qvec_to_rotmat, rotation_angle_deg
 from recon.workspace import Workspace
 
-SPARSE_TEST = api.REPO / "tests" / "sparse_test.yaml"
+SPARSE_TEST = Path(__file__).resolve().parents[2] / "tests" / "sparse_test.yaml"
 
 
 def _links(folder, photos):

@@ -9,9 +9,8 @@ import pytest
 from PIL import Image
 
 import recon
-from recon.sparse.features import extract_sift
-from recon.stages.features import FeaturesConfig
-from recon.workspace import read_json
+from recon.files import read_json
+from recon.sparse.features import FeaturesConfig, extract_sift
 
 TIMES = (1.0, 16.0, 256.0)  # 4 stops apart
 VIEWS = 5

@@ -13,6 +13,7 @@ from PIL import Image
 import recon
 from recon.eval.groundtruth import Camera
 from recon.eval.poses import pose_metrics
+from recon.files import read_json
 from recon.imaging.calibration import Chessboard, render_board_views
 from recon.imaging.intrinsics import Intrinsics
 from recon.imaging.undistort import undistorted_camera
@@ -20,7 +21,6 @@ from recon.sparse.database import opened
 from recon.synth import scene_cameras
 from recon.synth.render import Renderer
 from recon.synth.scene import build_scene
-from recon.workspace import read_json
 
 # The scene camera at the calibration photos' size: 0.9 x width focal (as recon.synth), barrel distortion.
 TRUE = Intrinsics("OPENCV", 640, 480, (576.0, 576.0, 320.0, 240.0, -0.12, 0.03, 0.0005, -0.0004))

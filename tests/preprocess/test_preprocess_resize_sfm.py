@@ -9,7 +9,7 @@ from PIL import Image
 import recon
 from recon.eval.groundtruth import load_cameras
 from recon.eval.poses import pose_metrics
-from recon.workspace import read_json
+from recon.files import read_json
 
 
 @pytest.mark.slow

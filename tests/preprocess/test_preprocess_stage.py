@@ -10,11 +10,11 @@ from PIL import Image
 
 import recon
 from recon.config import ConfigError
+from recon.files import read_json
 from recon.pipeline import load_config
 from recon.sparse.features import load_features
 from recon.stage import StageError
 from recon.stages import preprocess as preprocess_stage
-from recon.workspace import read_json
 
 
 def output(ws: Path, stage: str) -> Path:

@@ -14,10 +14,10 @@ import pytest
 import recon
 from recon.eval.groundtruth import Camera
 from recon.eval.poses import pose_metrics
+from recon.files import read_json
 from recon.synth.cameras import ORBIT_ELEVATION_DEG, ORBIT_RADIUS, intrinsics, look_at
 from recon.synth.render import Renderer
 from recon.synth.scene import TARGET, build_scene
-from recon.workspace import read_json
 
 WIDTH, HEIGHT, FRAMES = 320, 240, 90
 BLURRED = {6, 7, 19, 31, 40, 41, 52, 63, 64, 75, 86}

@@ -81,6 +81,10 @@ def catalogue(tmp: Path, scene: Path, workspace: Path, photo: np.ndarray) -> lis
         ([*run, ws, "-o", "features.max_image_size=big"], "features.max_image_size: expected an integer"),
         ([*run, ws, "-o", "features.max_image_size=-5"], "features.max_image_size: must be > 0; got -5"),
         ([*run, ws, "-o", "matching.max_ratio=1.5"], "matching.max_ratio: must be <= 1; got 1.5"),
+        ([*run, ws, "-o", "seed=99999999999999999999"], "seed: must be an integer from 0 to 2147483647"),
+        (["run", str(config("bomb.yaml", "a: &a [x, x, x, x, x, x, x, x]\n" + "".join(
+            f"{b}: &{b} [{', '.join([f'*{a}'] * 8)}]\n" for a, b in zip("abcdefg", "bcdefgh")))),
+          "--workspace", ws], "bomb.yaml: expands to more than 1 MB through YAML aliases"),
         ([*run, ws, "-o", "features.type=aliked"], "features.type: 'aliked' needs pycolmap built with ONNX support"),
         ([*run, ws, "-o", "features.max_image_size"], "expected key=value"),
         ([*run, ws, "-o", "executor=gpu"], "executor: 'gpu' is not one of"),

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from recon.eval.groundtruth import load_cameras
 from recon.eval.poses import pose_metrics
-from recon.workspace import read_json
+from recon.files import read_json
 
 
 def registered_poses(ws: Path) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -38,7 +38,7 @@ PEAK_RSS = """
 import json, resource, sys
 from pathlib import Path
 from recon.sparse.features import extract_sift
-from recon.stages.features import FeaturesConfig
+from recon.sparse.features import FeaturesConfig
 
 def peak():
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB
@@ -180,7 +180,7 @@ def test_a_set_sfm_cannot_reconstruct_says_why_and_keeps_the_matches(kind, tmp_p
     else:
         for name in ("view_000.jpg", "view_002.jpg", "view_004.jpg"):
             shutil.copy(small_scene / "images" / name, photos / name)
-        why = "No initial pair: 3 photos have matches but 0 pair(s) have the 100+ inliers"
+        why = "No initial pair: 3 photos have matches, but no pair has the 100+ verified inliers"
     ws = tmp_path / "ws"
     args = ("run", SPARSE, "--images", photos, "--workspace", ws)
     first = cli(*args)

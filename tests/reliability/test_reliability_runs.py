@@ -24,8 +24,8 @@ from reliability_checks import (
 )
 
 import recon
+from recon.files import read_json
 from recon.stage import REGISTRY
-from recon.workspace import read_json
 
 DRIVER = Path(__file__).with_name("interrupt.py")
 INTERRUPTED_STAGES = ["ingest", "features", "matching", "sfm", "export"]

@@ -25,7 +25,6 @@ import pytest
 import recon
 
 REPO = Path(__file__).resolve().parents[2]
-SPARSE = REPO / "tests" / "sparse_test.yaml"  # the session sparse run's config: its stages stay cached
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
                   # WebGL on the CPU (SwiftShader): the viewer needs it and the machine has no GPU
@@ -33,9 +32,10 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic
 
 
 def _run_report(images: Path, workspace: Path, overrides: list[str] | None = None):
-    """Run the sparse stages (cached when present) and the report into ``workspace``."""
-    return recon.run(SPARSE, images=str(images), workspace=str(workspace),
-                     overrides=["stages=[export, report]", *(overrides or [])])
+    """Run pipelines/sparse.yaml (its sparse stages are the session sparse run's, cached when present:
+    the same options, single-threaded mapping) and so its report into ``workspace``."""
+    return recon.run(REPO / "pipelines" / "sparse.yaml", images=str(images), workspace=str(workspace),
+                     overrides=["sfm.deterministic=true", *(overrides or [])])
 
 
 @pytest.fixture(scope="session")

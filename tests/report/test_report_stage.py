@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from recon.files import write_json
+from recon.geometry.transforms import up_direction
 from recon.mvs.colmap_io import write_map
-from recon.report.gather import read_model, up_direction
+from recon.report.gather import read_model
 from recon.report.viewer import frustum_segments
 from recon.stages.report import _current_optional
-from recon.workspace import Workspace, write_json
+from recon.workspace import Workspace
 
 
 def _fake_output(ws: Workspace, stage: str, key: str, upstream: dict) -> None:

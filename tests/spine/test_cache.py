@@ -10,7 +10,7 @@ from pathlib import Path
 import pycolmap
 
 import recon
-from recon.workspace import read_json
+from recon.files import read_json
 
 REPO = Path(__file__).resolve().parents[2]
 SPARSE = REPO / "tests" / "sparse_test.yaml"

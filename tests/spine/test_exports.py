@@ -62,3 +62,18 @@ def test_transforms_json_in_nerfstudio_convention(sparse_workspace):
         assert np.allclose(c2w[:3, 3], img.projection_center(), atol=1e-6)
         assert np.allclose(-c2w[:3, 2], img.viewing_direction(), atol=1e-6)
         assert np.allclose(np.linalg.det(c2w[:3, :3]), 1.0, atol=1e-6)
+
+
+def test_transforms_json_names_the_sparse_points_as_nerfstudio_reads_them(sparse_workspace):
+    """nerfstudio's dataparser opens ``ply_file_path`` (relative to transforms.json) with open3d and
+    starts splatfacto from its points and colours."""
+    from recon._open3d import open3d
+
+    transforms = sparse_workspace / "transforms.json"
+    data = json.loads(transforms.read_text())
+    cloud = open3d().io.read_point_cloud(str(transforms.parent / data["ply_file_path"]))
+    rec = pycolmap.Reconstruction(str(sparse_workspace / "sparse" / "0"))
+    xyz = np.array(sorted(tuple(p.xyz) for p in rec.points3D.values()))
+    assert np.allclose(np.array(sorted(map(tuple, np.asarray(cloud.points)))), xyz, atol=1e-5)
+    rgb = np.array(sorted(tuple(p.color) for p in rec.points3D.values()))
+    assert np.array_equal(np.array(sorted(map(tuple, np.round(np.asarray(cloud.colors) * 255).astype(int)))), rgb)

@@ -9,8 +9,8 @@ import pytest
 from PIL import Image
 
 import recon
+from recon.files import read_json
 from recon.stage import StageError
-from recon.workspace import read_json
 
 
 def ingest(images: Path, ws: Path, **cfg) -> dict:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import pickle
 import re
 import signal
 import subprocess
@@ -45,7 +44,7 @@ def features_done(ws: Path) -> int:
 
 def matched_pairs(ws: Path) -> int:
     """Pairs in the matching stage's finished blocks (each block file is written atomically)."""
-    return sum(len(pickle.loads(p.read_bytes())) for p in ws.glob(".recon/cache/matching/*.partial/blocks/*.pkl"))
+    return sum(len(np.load(p)["pairs"]) for p in ws.glob(".recon/cache/matching/*.partial/blocks/*.npz"))
 
 
 def poses(ws: Path) -> dict[str, np.ndarray]:

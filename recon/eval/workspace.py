@@ -1,0 +1,143 @@
+"""A workspace's figures against ground truth (``recon eval``, the report, the benchmarks).
+
+Poses of the published sparse model against ground-truth cameras; on a synthetic scene also the
+accuracy and completeness of the fused cloud and the mesh against the true surface, after aligning
+the model to the ground truth by a robust similarity on the camera centres; with depth maps, the
+fused cloud's reprojection error into the ground-truth cameras (:mod:`recon.eval.reprojection`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from recon.products import Published, SparseModel
+
+
+class EvaluationError(ValueError):
+    """The workspace or the ground truth cannot be evaluated; the message says why."""
+
+
+def _estimated_poses(ws: Path, gt_cams: dict) -> dict:
+    """World-to-camera (R, t) of ``<ws>/sparse/0``'s registered images, keyed by their ground-truth names."""
+    import pycolmap
+
+    model = Published(ws).model()
+    if not (model / "images.bin").exists() and not (model / "images.txt").exists():
+        raise EvaluationError(f"{ws}: no sparse model at {model.relative_to(ws)}; run the pipeline first")
+    rec = pycolmap.Reconstruction(str(model))
+    by_base = {Path(n).name: n for n in gt_cams}
+    est = {}
+    for image in rec.images.values():
+        key = by_base.get(Path(image.name).name)
+        if image.has_pose and key is not None:
+            pose = image.cam_from_world()
+            est[key] = (pose.rotation.matrix(), pose.translation)
+    return est
+
+
+def _load_gt(gt: str | Path) -> dict:
+    from recon.eval.groundtruth import load_cameras
+
+    try:
+        return load_cameras(Path(gt))
+    except (FileNotFoundError, ValueError) as exc:
+        raise EvaluationError(f"{gt}: {exc}") from None
+
+
+def model_to_ground_truth(workspace: Path, gt: Path):
+    """The similarity taking the model's world to the ground truth's (robust fit on camera centres)."""
+    gt_cams = _load_gt(gt)
+    return _alignment(_estimated_poses(workspace, gt_cams), gt_cams, gt)
+
+
+def _alignment(est: dict, gt_cams: dict, gt: str | Path):
+    import numpy as np
+
+    from recon.geometry.transforms import align_similarity, camera_center
+
+    if len(est) < 3:
+        raise EvaluationError(f"{gt}: fewer than 3 images of the model have a ground-truth camera")
+    names = sorted(est)
+    src = np.array([camera_center(*est[n]) for n in names])
+    dst = np.array([gt_cams[n].center for n in names])
+    return align_similarity(src, dst, robust=True)[0]
+
+
+def evaluate(workspace: Path, gt: Path) -> dict:
+    """Figures of a workspace against ground truth: poses of ``sparse/0`` against the ground-truth
+    cameras; on a synthetic scene also accuracy/completeness of the fused cloud and the mesh, after
+    aligning the model to the ground truth by a robust similarity on the camera centres; with depth
+    maps, the fused cloud's reprojection error into the ground-truth cameras."""
+    from recon.eval.poses import pose_metrics
+
+    ws = Path(workspace)
+    gt_cams = _load_gt(gt)
+    est = _estimated_poses(ws, gt_cams)
+    if not est:
+        raise EvaluationError(f"{gt}: no image of the model has a ground-truth camera there (names differ?)")
+    figures: dict = {"poses": pose_metrics(est, gt_cams)}
+    scene_file = Path(gt) / "gt" / "scene.json"
+    published = Published(ws)
+    surfaces = [(key, path) for key, path in (("fused", published.fused), ("mesh", published.mesh)) if path.exists()]
+    reprojection = published.fused.exists() and published.depth_maps.is_dir()
+    sim = _alignment(est, gt_cams, gt) if len(est) >= 3 and (reprojection or scene_file.exists() and surfaces) else None
+    if scene_file.exists() and surfaces and sim is not None:
+        import numpy as np
+        import trimesh
+
+        from recon.eval.surface import surface_metrics
+        from recon.synth import load_scene
+
+        scene = load_scene(Path(gt))
+        for key, path in surfaces:
+            geometry = trimesh.load(path, process=False)
+            geometry.vertices = sim.apply(np.asarray(geometry.vertices))
+            figures[key] = surface_metrics(geometry, scene)
+    if reprojection and sim is not None:
+        figures["fused_reprojection"] = _fused_reprojection(ws, gt_cams, sim)
+    return figures
+
+
+def _fused_reprojection(ws: Path, gt_cams: dict, to_gt, max_points: int = 200_000) -> dict:
+    """Reprojection error of (a sample of) the fused cloud into the ground-truth cameras, in pixels,
+    after refining ``to_gt`` on the sparse model's observations (:mod:`recon.eval.reprojection`)."""
+    import numpy as np
+    import pycolmap
+    import trimesh
+
+    from recon.eval.reprojection import DenseView, refine_alignment, reprojection_errors
+    from recon.mvs.colmap_io import read_depth_map
+    from recon.mvs.views import model_views, scaled_to
+
+    published = Published(ws)
+    points = np.asarray(trimesh.load(published.fused).vertices)
+    if len(points) > max_points:
+        points = points[np.random.default_rng(0).choice(len(points), max_points, replace=False)]
+    sparse = pycolmap.Reconstruction(str(published.model()))
+    photos = {image.name: sparse.camera(image.camera_id) for image in sparse.images.values() if image.has_pose}
+    by_base = {Path(n).name: n for n in gt_cams}
+    views = []
+    for view in model_views(published.dense / SparseModel.MODELS):
+        path = published.depth_maps / f"{view.name}.geometric.bin"
+        camera = photos.get(view.name)
+        if not path.exists() or camera is None or Path(view.name).name not in by_base:
+            continue
+        depth = read_depth_map(path)
+        scaled = scaled_to(view, depth.shape[1], depth.shape[0])
+        views.append(DenseView(by_base[Path(view.name).name], view.R, view.t, scaled.K, depth,
+                               lambda x, cam=camera: cam.img_from_cam(x), (camera.width, camera.height)))
+    observations = []
+    for image in sparse.images.values():
+        name = by_base.get(Path(image.name).name)
+        seen = [p for p in image.points2D if p.has_point3D()] if image.has_pose and name else []
+        if seen:
+            cam, truth = sparse.camera(image.camera_id), gt_cams[name]
+            scale = [truth.width / cam.width, truth.height / cam.height] if truth.width and truth.height else 1.0
+            observations.append((name, np.array([sparse.point3D(p.point3D_id).xyz for p in seen]),
+                                 np.array([p.xy for p in seen]) * scale))
+    to_gt = refine_alignment(observations, gt_cams, to_gt)
+    errors = reprojection_errors(points, views, gt_cams, to_gt)
+    if not len(errors):
+        return {}
+    return {"median_px": float(np.median(errors)), "p90_px": float(np.percentile(errors, 90)),
+            "observations": len(errors), "points": len(points)}

@@ -1,0 +1,196 @@
+"""``make bench-quality``: the full pipeline on every scene of the zoo (recon.synth.zoo), one table.
+
+Per scene: registered views, the fused cloud's and the mesh's F-score at 0.2 % and 0.5 % of the
+scene's extent (recon.eval.surface, through ``recon.api.evaluate``: the model is aligned to the
+ground truth by a robust similarity on the camera centres), and in the scene's held-out views the
+masked PSNR of the textured mesh beside that of the vertex-coloured mesh (the baseline a texture
+must beat) and the texture's coverage; seconds per stage. Then the mean and the worst scene.
+
+- PSNR is over the pixels where the rendered mesh and the true surface both are (recon.eval.texture).
+- Coverage is the share of the held-out views' true-surface pixels (ground-truth depth > 0) that
+  the textured mesh covers.
+- A scene whose pipeline fails counts as F = 0 and coverage 0 in the mean and the worst (its error
+  is printed); its PSNR is left out, as is the PSNR of a scene whose mesh shows nothing in its
+  held-out views.
+- ``masked_object`` runs with ``preprocess.mask_dir`` set to the masks it ships.
+
+Results go to ``<out>/quality.json`` (figures per scene and the summary), so two runs can be
+compared. Scenes render once into ``<out>/quality/<scene>/scene`` and are reused while their
+size and view count match.
+
+    python -m recon.bench --only quality [--scenes a,b] [--size 640x480] [--views N] [-o key=value]...
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import recon
+import recon.api
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIG = Path(__file__).resolve().parent / "pipelines" / "full.yaml"
+TAUS = ("0.002", "0.005")
+STAGES = ("ingest", "preprocess", "features", "matching", "sfm", "export", "undistort", "mvs", "fusion", "mesh",
+          "texture")
+
+
+def scene_for(name: str, root: Path, width: int, height: int, views: int | None):
+    """The rendered zoo scene ``name`` under ``root`` (rendered when absent or of another size)."""
+    from recon.synth import load_scene
+    from recon.synth.zoo import render_zoo
+
+    try:
+        info = load_scene(root)
+        if info.name == name and (info.width, info.height) == (width, height) and views in (None, info.views):
+            return info
+    except FileNotFoundError:
+        pass
+    return render_zoo(name, root, views=views, width=width, height=height)
+
+
+def holdout_texture(ws: Path, scene) -> dict:
+    """Masked PSNR of the textured and the vertex-coloured mesh and the texture's coverage, averaged over
+    the scene's held-out views (module doc)."""
+    import trimesh
+    from PIL import Image
+
+    from recon.eval.texture import masked_psnr, render
+
+    sim = recon.api.model_to_ground_truth(ws, scene.root)
+    meshes = {"texture": trimesh.load(ws / "textured.glb", force="mesh"),
+              "vertex_colours": trimesh.load(ws / "mesh.ply", process=False)}
+    for mesh in meshes.values():
+        mesh.vertices = sim.apply(np.asarray(mesh.vertices))
+    psnr: dict[str, list[float]] = {k: [] for k in meshes}
+    coverage = []
+    for name, cam in scene.cameras(holdout=True).items():
+        truth = np.asarray(Image.open(scene.holdout_images_dir / name).convert("RGB"))
+        surface = scene.depth(name) > 0
+        for key, mesh in meshes.items():
+            image, mask = render(mesh, cam, cam.width, cam.height)
+            if (mask & surface).any():  # no PSNR where the mesh shows nothing of the surface
+                psnr[key].append(masked_psnr(image, truth, mask & surface))
+            if key == "texture":
+                coverage.append(float(np.count_nonzero(mask & surface) / max(np.count_nonzero(surface), 1)))
+    out = {"coverage": float(np.mean(coverage))}
+    if psnr["texture"]:
+        out |= {"psnr": float(np.mean(psnr["texture"])), "psnr_vertex_colours": float(np.mean(psnr["vertex_colours"]))}
+    return out
+
+
+def bench_scene(name: str, out: Path, config: Path, overrides: list[str], width: int, height: int,
+                views: int | None) -> dict:
+    """Render (or reuse) the scene, run the pipeline on it from scratch, evaluate; a dict of figures."""
+    start = time.perf_counter()
+    scene = scene_for(name, out / name / "scene", width, height, views)
+    row: dict = {"scene": name, "views": scene.views, "holdout": scene.holdout, "size": [width, height],
+                 "render_seconds": round(time.perf_counter() - start, 2)}
+    ws = out / name / "ws"
+    shutil.rmtree(ws, ignore_errors=True)
+    extra = [f"preprocess.mask_dir={scene.masks_dir}"] if scene.masked else []
+    try:
+        result = recon.run(config, images=str(scene.images_dir), workspace=str(ws), overrides=[*overrides, *extra])
+        row["seconds"] = {k: round(v, 2) for k, v in result.seconds.items()}
+        figures = recon.api.evaluate(ws, scene.root)
+        row["registered"] = figures["poses"]["registered"]
+        for key in ("fused", "mesh"):
+            row[key] = {f"F@{t}": figures[key][f"fscore@{t}"] / 100 for t in TAUS if key in figures}
+        row.update(holdout_texture(ws, scene))
+    except Exception as exc:  # a failing scene is a result: record it and go on with the others
+        row["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+    return row
+
+
+def summary(rows: list[dict]) -> dict:
+    """Mean and worst over the scenes (a failed scene counts as F = 0 and coverage 0)."""
+    cols = {f"{k}@{t}": [r[k][f"F@{t}"] if k in r else 0.0 for r in rows] for k in ("fused", "mesh") for t in TAUS}
+    cols["coverage"] = [r.get("coverage", 0.0) for r in rows]
+    for key in ("psnr", "psnr_vertex_colours"):
+        cols[key] = [r[key] for r in rows if key in r]
+    cols["psnr_gain"] = [r["psnr"] - r["psnr_vertex_colours"] for r in rows if "psnr" in r]
+    return {"mean": {k: float(np.mean(v)) for k, v in cols.items() if v},
+            "worst": {k: float(np.min(v)) for k, v in cols.items() if v}, "failed": [r["scene"] for r in rows
+                                                                                      if "error" in r]}
+
+
+def print_table(rows: list[dict], summ: dict) -> None:
+    stages = [s for s in STAGES if any(s in r.get("seconds", {}) for r in rows)]
+    short = {"preprocess": "prep", "features": "feat", "matching": "match", "undistort": "undist",
+             "fusion": "fuse", "texture": "tex"}
+    head = (f"{'scene':<16}{'reg':>6}{'fusedF.2':>9}{'fusedF.5':>9}{'meshF.2':>8}{'meshF.5':>8}{'texPSNR':>8}"
+            f"{'vcPSNR':>7}{'cover':>7} |" + "".join(f"{short.get(s, s):>7}" for s in stages) + f"{'total':>8}")
+    print(head)
+    print("-" * len(head))
+
+    def fig(v, fmt):
+        return format(v, fmt) if v is not None else format("-", ">" + fmt.split(".")[0])
+
+    for r in rows:
+        f = [r.get(k, {}).get(f"F@{t}") for k in ("fused", "mesh") for t in TAUS]
+        reg = f"{r['registered']}/{r['views']}" if "registered" in r else "-"
+        secs = r.get("seconds", {})
+        print(f"{r['scene']:<16}{reg:>6}{fig(f[0], '9.3f')}{fig(f[1], '9.3f')}{fig(f[2], '8.3f')}{fig(f[3], '8.3f')}"
+              f"{fig(r.get('psnr'), '8.2f')}{fig(r.get('psnr_vertex_colours'), '7.2f')}{fig(r.get('coverage'), '7.3f')} |"
+              + "".join(f"{secs[s]:>7.1f}" if s in secs else f"{'-':>7}" for s in stages)
+              + f"{sum(secs.values()):>8.1f}")
+        if "error" in r:
+            print(f"{'':<16}failed: {r['error']}")
+    for which in ("mean", "worst"):
+        m = summ[which]
+        print(f"{which:<16}{'':>6}{fig(m.get('fused@0.002'), '9.3f')}{fig(m.get('fused@0.005'), '9.3f')}"
+              f"{fig(m.get('mesh@0.002'), '8.3f')}{fig(m.get('mesh@0.005'), '8.3f')}{fig(m.get('psnr'), '8.2f')}"
+              f"{fig(m.get('psnr_vertex_colours'), '7.2f')}{fig(m.get('coverage'), '7.3f')} |")
+    if "psnr_gain" in summ["mean"]:
+        print(f"texture over vertex colours: mean {summ['mean']['psnr_gain']:+.2f} dB, worst "
+              f"{summ['worst']['psnr_gain']:+.2f} dB")
+
+
+def main(argv: list[str] | None = None) -> int:
+    from recon.synth.zoo import SCENES
+
+    parser = argparse.ArgumentParser(prog="python -m recon.quality_bench")
+    parser.add_argument("--scenes", default=",".join(SCENES), help="comma-separated zoo scenes (default: all)")
+    parser.add_argument("--size", default="640x480", help="image size WxH (default 640x480)")
+    parser.add_argument("--views", type=int, default=None, help="regular views per scene (default: the scene's own)")
+    parser.add_argument("--config", type=Path, default=CONFIG, help="pipeline config (default pipelines/full.yaml)")
+    parser.add_argument("-o", "--override", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--out", type=Path, default=REPO / "bench_out")
+    args = parser.parse_args(argv)
+    names = [n.strip() for n in args.scenes.split(",") if n.strip()]
+    unknown = [n for n in names if n not in SCENES]
+    if unknown:
+        print(f"bench: --scenes: unknown zoo scene(s) {', '.join(unknown)} (`recon synth --list` lists them)",
+              file=sys.stderr)
+        return 2
+    try:
+        width, height = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        print(f"bench: --size {args.size}: give WIDTHxHEIGHT, e.g. 640x480", file=sys.stderr)
+        return 2
+    print(f"\n== quality: the zoo ({len(names)} scenes, {width}x{height}) through {args.config.name}, "
+          "evaluated against ground truth ==", flush=True)
+    rows = []
+    for name in names:
+        rows.append(bench_scene(name, args.out / "quality", args.config, args.override, width, height, args.views))
+        print(f"bench: {name} done" + (f" (failed: {rows[-1]['error']})" if "error" in rows[-1] else ""),
+              file=sys.stderr, flush=True)
+    summ = summary(rows)
+    print_table(rows, summ)
+    path = args.out / "quality.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"config": str(args.config), "overrides": args.override, "size": [width, height],
+                                "scenes": rows, "summary": summ}, indent=1))
+    print(f"results: {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,105 @@
+"""A copy of the textured model small enough for the report page, whatever the size of textured.glb.
+
+The surface is welded (the glTF splits vertices along texture seams), decimated by quadric edge
+collapse (:func:`recon.surface.cleanup.decimate`) and charted afresh by xatlas; its texture is baked
+from textured.glb's atlas at the nearest point of the full surface (open3d's closest-point query),
+at most ``texture`` texels a side, and stored as JPEG. The copy stays in textured.glb's frame.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+def page_model(glb: bytes, max_faces: int, texture: int) -> bytes:
+    """A GLB of at most ``max_faces`` faces with a JPEG texture of at most ``texture`` texels a side,
+    showing what the textured GLB ``glb`` shows."""
+    import trimesh
+
+    from recon.surface.cleanup import decimate
+
+    full = trimesh.load(io.BytesIO(glb), file_type="glb", force="mesh", process=False)
+    welded = trimesh.Trimesh(full.vertices, full.faces, process=False)
+    welded.merge_vertices()
+    small = decimate(welded, max_faces)
+    image = getattr(full.visual, "material", None) and full.visual.material.baseColorTexture
+    if full.visual.kind != "texture" or image is None:  # nothing to bake: the geometry alone
+        return small.export(file_type="glb")
+    vertices, faces, uv = _charts(np.asarray(small.vertices), np.asarray(small.faces), texture)
+    atlas = _bake(vertices, faces, uv, full, np.asarray(image.convert("RGB")), texture)
+    picture = _jpeg(atlas)
+    material = trimesh.visual.material.PBRMaterial(baseColorTexture=picture, metallicFactor=0.0, roughnessFactor=1.0,
+                                                   doubleSided=bool(getattr(full.visual.material, "doubleSided", False)))
+    out = trimesh.Trimesh(vertices, faces, visual=trimesh.visual.TextureVisuals(uv=uv, material=material),
+                          process=False)
+    data = out.export(file_type="glb")
+    log.info("report: textured model %.1f MB, %d faces -> page copy %.1f MB, %d faces, %d x %d texture",
+             len(glb) / 1e6, len(full.faces), len(data) / 1e6, len(faces), atlas.shape[1], atlas.shape[0])
+    return data
+
+
+def _charts(vertices: np.ndarray, faces: np.ndarray, texture: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """xatlas charts packed for a ``texture``-texel atlas: vertices (split at seams), faces and UVs
+    (trimesh's convention: v up)."""
+    import xatlas
+
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(faces, np.uint32))
+    charts = xatlas.ChartOptions()
+    charts.max_iterations = 0  # charts grown once: 2.5x faster on 30,000 faces, 8 % less of the atlas used
+    pack = xatlas.PackOptions()
+    pack.resolution = texture
+    pack.padding = 2
+    atlas.generate(charts, pack)
+    mapping, indices, uv = atlas.get_mesh(0)
+    return vertices[mapping], indices.astype(np.int64), uv.astype(np.float64)
+
+
+def _bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, source, source_image: np.ndarray,
+          texture: int) -> np.ndarray:
+    """The atlas (H, W, 3 uint8) of the charted copy: each texel takes the source's colour at the point of
+    the source surface nearest to the texel's point; texels outside every chart take the nearest
+    chart texel's colour (no dark seams under bilinear or mip-mapped lookups)."""
+    from scipy import ndimage
+
+    from recon._open3d import open3d
+    from recon.surface.raycast import scene_of
+    from recon.surface.texture.raster import rasterize, sample_bilinear
+
+    size = texture
+    corners = uv[faces] * [size, -size] + [0, size]  # texel coordinates, y down
+    face_map, bary = rasterize(corners, np.arange(len(faces)), size, size)
+    filled = face_map >= 0
+    ids = face_map[filled]
+    points = np.einsum("nk,nkd->nd", bary[filled].astype(np.float64), vertices[faces[ids]])
+    centre = vertices.mean(axis=0)  # float32 queries near the scene, wherever it is
+    src_vertices, src_faces = np.asarray(source.vertices) - centre, np.asarray(source.faces)
+    o3d = open3d()
+    nearest = scene_of(src_vertices, src_faces).compute_closest_points(
+        o3d.core.Tensor(np.ascontiguousarray(points - centre, np.float32)))
+    face = nearest["primitive_ids"].numpy().astype(np.int64)
+    b = nearest["primitive_uvs"].numpy().astype(np.float64)
+    weights = np.column_stack([1.0 - b.sum(axis=1), b])
+    src_uv = np.einsum("nk,nkd->nd", weights, np.asarray(source.visual.uv, np.float64)[src_faces[face]])
+    h, w = source_image.shape[:2]
+    atlas = np.zeros((size, size, 3), np.uint8)
+    atlas[filled] = np.clip(sample_bilinear(source_image, src_uv[:, 0] * w, (1.0 - src_uv[:, 1]) * h) + 0.5,
+                            0, 255).astype(np.uint8)
+    if filled.any() and not filled.all():
+        near = ndimage.distance_transform_edt(~filled, return_distances=False, return_indices=True)
+        atlas = atlas[near[0], near[1]]
+    return atlas
+
+
+def _jpeg(pixels: np.ndarray):
+    """A PIL image that trimesh's glTF writer stores as JPEG (it keeps the format of a JPEG image)."""
+    from PIL import Image
+
+    image = Image.fromarray(pixels)
+    image.format = "JPEG"
+    return image

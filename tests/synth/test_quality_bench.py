@@ -1,0 +1,40 @@
+"""The quality bench's bookkeeping, and (slow) one tiny zoo scene through the whole bench."""
+
+import json
+
+import pytest
+
+from recon import quality_bench
+
+
+def _row(scene, fused, mesh, psnr, vc, cover):
+    return {"scene": scene, "views": 6, "registered": 6, "fused": {"F@0.002": fused, "F@0.005": fused},
+            "mesh": {"F@0.002": mesh, "F@0.005": mesh}, "psnr": psnr, "psnr_vertex_colours": vc, "coverage": cover,
+            "seconds": {"mvs": 1.0}}
+
+
+def test_summary_counts_a_failed_scene_as_zero():
+    rows = [_row("a", 0.9, 0.8, 26.0, 22.0, 0.99), _row("b", 0.7, 0.6, 24.0, 23.0, 0.95),
+            {"scene": "c", "views": 6, "error": "StageError: sfm: no model"}]
+    s = quality_bench.summary(rows)
+    assert s["mean"]["fused@0.002"] == pytest.approx((0.9 + 0.7) / 3)
+    assert s["worst"]["mesh@0.005"] == 0.0 and s["worst"]["coverage"] == 0.0
+    assert s["mean"]["psnr"] == pytest.approx(25.0) and s["worst"]["psnr_gain"] == pytest.approx(1.0)
+    assert s["failed"] == ["c"]
+
+
+def test_unknown_scene_is_refused(capsys):
+    assert quality_bench.main(["--scenes", "courtyard,nope"]) == 2
+    assert "nope" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_bench_runs_a_tiny_scene_end_to_end(tmp_path, capsys):
+    assert quality_bench.main(["--scenes", "turntable_black", "--size", "320x240", "--views", "10",
+                               "--out", str(tmp_path)]) == 0
+    out = json.loads((tmp_path / "quality.json").read_text())
+    row = out["scenes"][0]
+    assert "error" not in row, row.get("error")
+    assert row["registered"] >= 8 and 0.0 < row["fused"]["F@0.005"] <= 1.0 and 0.0 < row["coverage"] <= 1.0
+    assert row["psnr"] > 10 and {"mvs", "texture"} <= set(row["seconds"])
+    assert "turntable_black" in capsys.readouterr().out
