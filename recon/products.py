@@ -244,6 +244,18 @@ class DenseScene(Product):
     def stereo_configs(self) -> Path:
         return self.folder / "stereo"
 
+    @property
+    def masks(self) -> Path:
+        """``<image name>.png`` masks of the undistorted images (zero = not the subject), when the
+        photos had masks (preprocess.mask_dir)."""
+        return self.folder / "masks"
+
+    def mask(self, name: str):
+        """The undistorted mask of image ``name`` (True = use), or None."""
+        from recon.imaging.masks import load_mask
+
+        return load_mask(self.masks, name)
+
     def views(self) -> list:
         """The registered views' pinhole cameras, sorted by name (:func:`recon.mvs.views.model_views`)."""
         from recon.mvs.views import model_views

@@ -55,3 +55,22 @@ def inside_mask(mask: np.ndarray, points: np.ndarray) -> np.ndarray:
     keep = np.zeros(len(points), bool)
     keep[valid] = mask[rows[valid], cols[valid]]
     return keep
+
+
+def resample_mask(mask: np.ndarray, source, target) -> np.ndarray:
+    """``mask`` of an image of the pycolmap camera ``source`` as seen by the camera ``target`` (same
+    centre and orientation: an undistorted or resized view), nearest neighbour; pixels that fall
+    outside the source image are masked out."""
+    u, v = np.meshgrid(np.arange(target.width) + 0.5, np.arange(target.height) + 0.5)
+    rays = target.cam_from_img(np.stack([u.ravel(), v.ravel()], axis=1))
+    pixels = source.img_from_cam(np.column_stack([rays, np.ones(len(rays))]), check_cheirality=False)
+    return inside_mask(mask, pixels).reshape(target.height, target.width)
+
+
+def mask_at(mask: np.ndarray, width: int, height: int) -> np.ndarray:
+    """``mask`` for the same view at another resolution (depth maps are computed smaller)."""
+    if mask.shape == (height, width):
+        return mask
+    rows = np.minimum(((np.arange(height) + 0.5) * mask.shape[0] / height).astype(np.int64), mask.shape[0] - 1)
+    cols = np.minimum(((np.arange(width) + 0.5) * mask.shape[1] / width).astype(np.int64), mask.shape[1] - 1)
+    return mask[np.ix_(rows, cols)]

@@ -149,3 +149,25 @@ def dense_stereo(dense_dir: str | Path, options: MVSOptions = MVSOptions(),
         path = map_path(out_dir, "depth", problem.ref, "geometric")
         paths.append(path if path.exists() else geometric_view(dense_dir, problem, options, out_dir))
     return paths
+
+
+def mask_maps(out_dir: str | Path, name: str, mask: np.ndarray, pass_name: str) -> int:
+    """Clear the depth and normal of every masked pixel (``mask`` False, at any resolution) in the maps of
+    ``name``: a pixel that is not the subject gives no depth, so no fused point, face or texel.
+    Idempotent (a resumed run may apply it again); returns how many depths it cleared."""
+    from recon.imaging.masks import mask_at
+    from recon.mvs.colmap_io import read_map, write_map
+
+    depth_path = map_path(out_dir, "depth", name, pass_name)
+    depth = read_map(depth_path)
+    off = ~mask_at(mask, depth.shape[1], depth.shape[0])
+    cleared = int(np.count_nonzero(depth[off]))
+    if cleared:
+        depth[off] = 0
+        write_map(depth_path, depth)
+        normal_path = map_path(out_dir, "normal", name, pass_name)
+        if normal_path.exists():
+            normal = read_map(normal_path)
+            normal[off] = 0
+            write_map(normal_path, normal)
+    return cleared

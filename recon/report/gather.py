@@ -59,7 +59,8 @@ class Model:
     points: np.ndarray         # M x 3
     colors: np.ndarray         # M x 3 uint8
     track_lengths: np.ndarray  # M
-    errors: np.ndarray         # reprojection error of every observation, pixels
+    point_errors: np.ndarray   # per point: its mean reprojection error over the photos that see it, pixels
+    mean_error: float          # the mean of point_errors: COLMAP's mean reprojection error, as sfm reports it
     up: np.ndarray             # unit vector: the photos' average "up" in world coordinates
 
 
@@ -132,7 +133,7 @@ def read_model(path: Path) -> tuple[Model, dict[str, tuple[int, float]]]:
     images = sorted((im for im in rec.images.values() if im.has_pose), key=lambda im: im.name)
     point_ids = sorted(rec.points3D)
     xyz = {pid: rec.points3D[pid].xyz for pid in point_ids}
-    names, rotations, centers, intrinsics, all_errors = [], [], [], [], []
+    names, rotations, centers, intrinsics = [], [], [], []
     per_image: dict[str, tuple[int, float]] = {}
     for im in images:
         pose = im.cam_from_world()
@@ -151,7 +152,6 @@ def read_model(path: Path) -> tuple[Model, dict[str, tuple[int, float]]]:
             X = np.array([o[1] for o in observed]) @ R.T + t
             projected = np.asarray(cam.img_from_cam(X))
             errors = np.linalg.norm(projected - xy, axis=1)
-            all_errors.append(errors)
             per_image[im.name] = (len(observed), float(errors.mean()))
         else:
             per_image[im.name] = (0, float("nan"))
@@ -163,7 +163,8 @@ def read_model(path: Path) -> tuple[Model, dict[str, tuple[int, float]]]:
         points=np.array([xyz[p] for p in point_ids], dtype=float).reshape(-1, 3),
         colors=np.array([rec.points3D[p].color for p in point_ids], dtype=np.uint8).reshape(-1, 3),
         track_lengths=np.array([rec.points3D[p].track.length() for p in point_ids], dtype=int),
-        errors=np.concatenate(all_errors) if all_errors else np.zeros(0),
+        point_errors=np.array([rec.points3D[p].error for p in point_ids if rec.points3D[p].has_error()], float),
+        mean_error=rec.compute_mean_reprojection_error(),
         up=up_direction(rotations_a, centers_a))
     return model, per_image
 

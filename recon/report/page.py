@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from recon import __version__
-from recon.report import gather, plots
+from recon.report import gather, plots, preview
 from recon.report import viewer as viewer_data
 
 PACKAGE = Path(__file__).resolve().parent
@@ -25,9 +25,11 @@ THREE = PACKAGE / "vendor" / "three.bundle.min.js"
 class Limits:
     """How much of a large run goes into the page."""
 
-    max_points: int = 200_000        # sparse / dense points in the viewer (random subset)
+    max_points: int = 100_000        # sparse / dense points in the viewer (random subset)
     max_mesh_faces: int = 300_000    # mesh.ply embedded in the viewer when no textured.glb
-    max_glb_bytes: int = 20_000_000  # textured.glb embedded in the viewer
+    max_glb_bytes: int = 4_000_000   # textured.glb embedded as it is; a larger one as a copy made for the page
+    model_faces: int = 30_000        # faces of that copy
+    model_texture: int = 2048        # its texture's largest side, texels
     thumbnails: int = 12             # depth / normal map thumbnails
     viewer: bool = True              # include the 3D viewer (three.js: ~0.8 MB)
 
@@ -58,16 +60,19 @@ def build_report(sources: gather.Sources, *, title: str, evaluation: dict | None
         total, xyz, rgb = gather.read_point_cloud(sources.fused, limits.max_points)
         dense = (xyz, rgb)
         summary["dense_points"] = total
-    glb = sources.textured.read_bytes() if _exists(sources.textured) else None
+    glb = sources.textured.read_bytes() if _exists(sources.textured) and limits.viewer else None
     glb_note = ""
     if glb is not None and len(glb) > limits.max_glb_bytes:
-        glb_note = (f"textured.glb is {len(glb) / 1e6:.1f} MB, more than the {limits.max_glb_bytes / 1e6:.0f} MB "
-                    "embedded here: open it in Blender or any glTF viewer.")
-        glb = None
+        size = len(glb)
+        glb = preview.page_model(glb, limits.model_faces, limits.model_texture)
+        glb_note = (f"textured.glb ({size / 1e6:.1f} MB) is shown as a copy made for this page ({len(glb) / 1e6:.1f} "
+                    f"MB: at most {limits.model_faces} faces, a texture of at most {limits.model_texture} texels a "
+                    "side): open textured.glb in Blender or any glTF viewer for the full model.")
+        summary["page_model_mb"] = round(len(glb) / 1e6, 2)
 
     if limits.viewer:
         data = viewer_data.payload(model, dense, sources.mesh if _exists(sources.mesh) else None,
-                                   limits.max_mesh_faces, glb)
+                                   limits.max_mesh_faces, glb, limits.max_points)
         sections.append(("viewer", "3D view", _viewer_section(glb_note)))
     run = _run_section(sources)
     if run:

@@ -30,8 +30,8 @@ def page_model(glb: bytes, max_faces: int, texture: int) -> bytes:
     image = getattr(full.visual, "material", None) and full.visual.material.baseColorTexture
     if full.visual.kind != "texture" or image is None:  # nothing to bake: the geometry alone
         return small.export(file_type="glb")
-    vertices, faces, uv = _charts(np.asarray(small.vertices), np.asarray(small.faces), texture)
-    atlas = _bake(vertices, faces, uv, full, np.asarray(image.convert("RGB")), texture)
+    vertices, faces, uv, size = _charts(np.asarray(small.vertices), np.asarray(small.faces), texture)
+    atlas = _bake(vertices, faces, uv, size, full, np.asarray(image.convert("RGB")))
     picture = _jpeg(atlas)
     material = trimesh.visual.material.PBRMaterial(baseColorTexture=picture, metallicFactor=0.0, roughnessFactor=1.0,
                                                    doubleSided=bool(getattr(full.visual.material, "doubleSided", False)))
@@ -43,9 +43,9 @@ def page_model(glb: bytes, max_faces: int, texture: int) -> bytes:
     return data
 
 
-def _charts(vertices: np.ndarray, faces: np.ndarray, texture: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """xatlas charts packed for a ``texture``-texel atlas: vertices (split at seams), faces and UVs
-    (trimesh's convention: v up)."""
+def _charts(vertices: np.ndarray, faces: np.ndarray, texture: int):
+    """xatlas charts packed for a ``texture``-texel atlas: vertices (split at seams), faces, UVs
+    (trimesh's convention: v up) and the atlas' (width, height), at most ``texture``."""
     import xatlas
 
     atlas = xatlas.Atlas()
@@ -57,11 +57,13 @@ def _charts(vertices: np.ndarray, faces: np.ndarray, texture: int) -> tuple[np.n
     pack.padding = 2
     atlas.generate(charts, pack)
     mapping, indices, uv = atlas.get_mesh(0)
-    return vertices[mapping], indices.astype(np.int64), uv.astype(np.float64)
+    scale = min(1.0, texture / max(atlas.width, atlas.height, 1))  # xatlas may exceed the resolution asked
+    size = (max(int(atlas.width * scale), 1), max(int(atlas.height * scale), 1))
+    return vertices[mapping], indices.astype(np.int64), uv.astype(np.float64), size
 
 
-def _bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, source, source_image: np.ndarray,
-          texture: int) -> np.ndarray:
+def _bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, size: tuple[int, int], source,
+          source_image: np.ndarray) -> np.ndarray:
     """The atlas (H, W, 3 uint8) of the charted copy: each texel takes the source's colour at the point of
     the source surface nearest to the texel's point; texels outside every chart take the nearest
     chart texel's colour (no dark seams under bilinear or mip-mapped lookups)."""
@@ -71,9 +73,9 @@ def _bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, source, sourc
     from recon.surface.raycast import scene_of
     from recon.surface.texture.raster import rasterize, sample_bilinear
 
-    size = texture
-    corners = uv[faces] * [size, -size] + [0, size]  # texel coordinates, y down
-    face_map, bary = rasterize(corners, np.arange(len(faces)), size, size)
+    width, height = size
+    corners = uv[faces] * [width, -height] + [0, height]  # texel coordinates, y down
+    face_map, bary = rasterize(corners, np.arange(len(faces)), height, width)
     filled = face_map >= 0
     ids = face_map[filled]
     points = np.einsum("nk,nkd->nd", bary[filled].astype(np.float64), vertices[faces[ids]])
@@ -87,7 +89,7 @@ def _bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, source, sourc
     weights = np.column_stack([1.0 - b.sum(axis=1), b])
     src_uv = np.einsum("nk,nkd->nd", weights, np.asarray(source.visual.uv, np.float64)[src_faces[face]])
     h, w = source_image.shape[:2]
-    atlas = np.zeros((size, size, 3), np.uint8)
+    atlas = np.zeros((height, width, 3), np.uint8)
     atlas[filled] = np.clip(sample_bilinear(source_image, src_uv[:, 0] * w, (1.0 - src_uv[:, 1]) * h) + 0.5,
                             0, 255).astype(np.uint8)
     if filled.any() and not filled.all():

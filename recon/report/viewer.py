@@ -1,5 +1,6 @@
 """The 3D viewer's data: cameras as frustum line segments, sparse and dense points, the mesh, as
-base64 typed arrays (float32 positions, uint8 colours, uint32 indices) that the page decodes."""
+base64 typed arrays (float32 positions, uint8 colours, uint32 indices) that the page decodes; the
+textured model as a GLB with the matrix placing it in the viewer's frame."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.report.gather import Model
+from recon.surface.export import Z_UP_TO_GLTF
 
 
 def _b64(array: np.ndarray, dtype) -> str:
@@ -28,9 +30,10 @@ def frustum_segments(model: Model, depth: float) -> np.ndarray:
 
 
 def payload(model: Model | None, dense: tuple[np.ndarray, np.ndarray] | None,
-            mesh: Path | None, max_mesh_faces: int, glb: bytes | None) -> dict:
+            mesh: Path | None, max_mesh_faces: int, glb: bytes | None, max_points: int) -> dict:
     """Everything the viewer draws, in coordinates relative to ``origin`` (float32 keeps its precision
-    near the scene even when the model is geo-referenced far from zero)."""
+    near the scene even when the model is geo-referenced far from zero); at most ``max_points`` sparse
+    points (a random subset beyond). ``glb`` is in glTF's Y-up frame, as the texture stage writes it."""
     clouds = [a for a in (model.points if model is not None else None, dense[0] if dense else None)
               if a is not None and len(a)]
     anchor = np.vstack(clouds) if clouds else (model.centers if model is not None and len(model.centers)
@@ -48,21 +51,33 @@ def payload(model: Model | None, dense: tuple[np.ndarray, np.ndarray] | None,
         data["layers"].append({"id": "cameras", "label": f"cameras ({len(model.names)})", "kind": "lines",
                                "positions": _b64(segments, np.float32), "color": "#e8553e"})
         if len(model.points):
-            data["layers"].append({"id": "sparse-points", "label": f"sparse points ({len(model.points)})",
-                                   "kind": "points", "positions": _b64(model.points - origin, np.float32),
-                                   "colors": _b64(model.colors, np.uint8), "size": 3})
+            keep = np.arange(len(model.points))
+            if len(keep) > max_points:
+                keep = np.sort(np.random.default_rng(0).choice(len(keep), max_points, replace=False))
+            shown = "" if len(keep) == len(model.points) else f"{len(keep)} of "
+            data["layers"].append({"id": "sparse-points", "label": f"sparse points ({shown}{len(model.points)})",
+                                   "kind": "points", "positions": _b64(model.points[keep] - origin, np.float32),
+                                   "colors": _b64(model.colors[keep], np.uint8), "size": 3})
     if dense is not None and len(dense[0]):
         data["layers"].append({"id": "dense", "label": f"dense points ({len(dense[0])} shown)", "kind": "points",
                                "positions": _b64(dense[0] - origin, np.float32),
                                "colors": _b64(dense[1], np.uint8), "size": 1.5, "visible": True})
     if glb is not None:
         data["layers"].append({"id": "textured", "label": "textured mesh", "kind": "glb",
-                               "data": base64.b64encode(glb).decode("ascii")})
+                               "data": base64.b64encode(glb).decode("ascii"),
+                               "matrix": glb_to_viewer(origin).T.ravel().tolist()})  # three.js: column-major
     elif mesh is not None:
         layer = mesh_layer(mesh, max_mesh_faces, origin)
         if layer is not None:
             data["layers"].append(layer)
     return data
+
+
+def glb_to_viewer(origin: np.ndarray) -> np.ndarray:
+    """4 x 4 matrix from glTF's Y-up frame back to recon's Z-up world, less ``origin``."""
+    shift = np.eye(4)
+    shift[:3, 3] = -np.asarray(origin, float)
+    return shift @ np.linalg.inv(Z_UP_TO_GLTF)
 
 
 def mesh_layer(path: Path, max_faces: int, origin: np.ndarray) -> dict | None:

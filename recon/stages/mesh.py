@@ -19,6 +19,18 @@ class MeshConfig(MeshOptions):
     tsdf_max_views: int = opt(0, "tsdf: integrate at most this many depth maps, evenly spread (0 = all)", ge=0)
 
 
+def _drop_masked(ctx: StageContext, mesh):
+    """With masks (preprocess.mask_dir): the mesh without faces over masked pixels, and how many went
+    (:mod:`recon.surface.masking`); None without masks."""
+    from recon.surface.masking import drop_masked_faces
+
+    dense = ctx.input(DenseScene)
+    if not dense.masks.is_dir():
+        return None
+    views = dense.views()
+    return drop_masked_faces(mesh, views, {v.name: m for v in views if (m := dense.mask(v.name)) is not None})
+
+
 @register
 class Mesh(Stage):
     name = "mesh"
@@ -36,12 +48,16 @@ class Mesh(Stage):
         else:
             mesh = self._tsdf(ctx, cfg)
         mesh = clean_mesh(mesh, cfg)
+        masked = _drop_masked(ctx, mesh)
+        if masked is not None:
+            mesh, dropped = masked
+            ctx.log.info("mesh: %d faces over masked pixels dropped", dropped)
         if len(mesh.faces) == 0:
             raise StageError(f"mesh: the {cfg.method} surface is empty after trimming; lower "
                              "mesh.density_quantile or check dense/fused.ply")
         write_bytes(ctx.output.path, mesh.export(file_type="ply"))
         return {"method": cfg.method, "vertices": len(mesh.vertices), "faces": len(mesh.faces),
-                "watertight": bool(mesh.is_watertight)}
+                "watertight": bool(mesh.is_watertight), "masked_faces_dropped": masked[1] if masked else 0}
 
     def _poisson(self, ctx: StageContext, cfg: MeshConfig):
         from recon._open3d import open3d

@@ -82,6 +82,7 @@ class Mvs(Stage):
         for pass_name in ("photometric", "geometric"):  # every view's photometric maps before any geometric
             ctx.map(_view_pass, [(pass_name, dense.folder, p, options, stereo) for p in problems],
                     desc=f"mvs {pass_name}", done=lambda t: map_path(stereo, "depth", t[2].ref, t[0]).exists())
+            _apply_masks(ctx, dense, stereo, [p.ref for p in problems], pass_name)
         return _coverage(stereo, [p.ref for p in problems], backend="cpu")
 
     def _colmap_cuda(self, ctx: StageContext, dense: DenseScene, stereo: Path, cfg: MvsConfig) -> dict:
@@ -97,7 +98,22 @@ class Mvs(Stage):
                 link.symlink_to(target)
         run_patch_match(scratch, replace(cfg, seed=cfg.seed + ctx.seed))
         names = [p.stem.removesuffix(".geometric") for p in (stereo / "depth_maps").glob("*.geometric.bin")]
+        _apply_masks(ctx, dense, stereo, names, "geometric")
         return _coverage(stereo, names, backend="colmap-cuda")
+
+
+def _apply_masks(ctx: StageContext, dense: DenseScene, stereo: Path, names: list[str], pass_name: str) -> None:
+    """Clear the depths of masked pixels (photos with masks): after the photometric pass, so that the
+    geometric pass does not check consistency against them, and after the geometric pass."""
+    from recon.mvs.stereo import map_path, mask_maps
+
+    cleared = 0
+    for name in names:
+        mask = dense.mask(name)
+        if mask is not None and map_path(stereo, "depth", name, pass_name).exists():
+            cleared += mask_maps(stereo, name, mask, pass_name)
+    if cleared:
+        ctx.log.info("mvs: %s depths of %d masked pixels cleared", pass_name, cleared)
 
 
 def _coverage(stereo: Path, names: list[str], backend: str) -> dict:

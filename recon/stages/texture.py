@@ -51,7 +51,8 @@ class Texture(Stage):
         if not views:
             raise StageError("texture: the undistorted model has no registered photo")
         images = [cv2.cvtColor(cv2.imread(str(dense.images / v.name)), cv2.COLOR_BGR2RGB) for v in views]
-        textured = texture_mesh(mesh, images, views, cfg)
+        masks = [dense.mask(v.name) for v in views] if dense.masks.is_dir() else None
+        textured = texture_mesh(mesh, images, views, cfg, masks)
         sizes = write_exports(textured, ctx.out)
         seen = float(np.mean(textured.face_view >= 0))
         return {"faces": len(textured.faces), "atlas": f"{textured.texture.shape[1]}x{textured.texture.shape[0]}",

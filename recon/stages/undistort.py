@@ -1,5 +1,8 @@
 """undistort: COLMAP's undistorted workspace (pinhole images, model, stereo configs) for dense work.
 
+360-degree (equirectangular) photos become six cube-map faces each, with exactly known relative
+poses (:mod:`recon.mvs.cubemap`); masks are not carried over to them.
+
 It reads preprocess's ``images_geometric``: the photos with only the geometric operations applied
 (resize, undistortion), so their pixels match the model's cameras and keep their original colours.
 """
@@ -7,7 +10,9 @@ It reads preprocess's ``images_geometric``: the photos with only the geometric o
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
+from recon.mvs import cubemap
 from recon.options import opt
 from recon.products import DenseScene, PreparedPhotos, SparseModel
 from recon.stage import Stage, StageContext, register
@@ -23,7 +28,7 @@ class UndistortConfig:
 @register
 class Undistort(Stage):
     name = "undistort"
-    version = 1
+    version = 2
     Config = UndistortConfig
     requires = (PreparedPhotos, SparseModel)
     produces = DenseScene
@@ -37,8 +42,33 @@ class Undistort(Stage):
         if cfg.max_image_size:
             opts.max_image_size = cfg.max_image_size
         dense = ctx.output
-        pycolmap.undistort_images(str(dense.folder), str(ctx.input(SparseModel).model()),
+        model = ctx.input(SparseModel).model()
+        if cubemap.is_spherical(model):  # 360-degree photos: six pinhole faces each (recon.mvs.cubemap)
+            return cubemap.write_cubemap_workspace(model, ctx.input(PreparedPhotos).geometric, dense.folder,
+                                                   cfg.max_image_size)
+        pycolmap.undistort_images(str(dense.folder), str(model),
                                   str(ctx.input(PreparedPhotos).geometric), undistort_options=opts)
         rec = pycolmap.Reconstruction(str(dense.model))
+        masked = _undistort_masks(ctx.input(PreparedPhotos).masks, pycolmap.Reconstruction(str(model)), rec,
+                                  dense.masks)
         cam = next(iter(rec.cameras.values()))
-        return {"images": rec.num_reg_images(), "size": f"{cam.width}x{cam.height}"}
+        return {"images": rec.num_reg_images(), "size": f"{cam.width}x{cam.height}", "masked": masked}
+
+
+def _undistort_masks(masks: Path, sparse, dense, out: Path) -> int:
+    """Each photo's mask (preprocess's, in the model's camera) resampled into its undistorted view,
+    so that no later stage takes a masked pixel for the subject; returns how many were written."""
+    from recon.imaging.masks import load_mask, resample_mask, save_mask
+
+    if not masks.is_dir():
+        return 0
+    written = 0
+    for image in dense.images.values():
+        mask = load_mask(masks, image.name)
+        if mask is None:
+            continue
+        source = sparse.find_image_with_name(image.name)
+        save_mask(out, image.name, resample_mask(mask, sparse.cameras[source.camera_id],
+                                                 dense.cameras[image.camera_id]))
+        written += 1
+    return written

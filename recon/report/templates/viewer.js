@@ -61,7 +61,6 @@
   controls.addEventListener("change", render);
   new ResizeObserver(resize).observe(holder);
 
-  const origin = new THREE.Vector3().fromArray(data.origin);
   const objects = {};
   let pending = 0;
   for (const layer of data.layers) {
@@ -92,7 +91,8 @@
     } else if (layer.kind === "glb") {
       pending++;
       const group = new THREE.Group();
-      group.position.copy(origin).negate();  // textured.glb is in the model's world frame, like mesh.ply
+      group.matrixAutoUpdate = false;  // glTF's Y-up frame to the viewer's (recon's world less the origin)
+      group.matrix.fromArray(layer.matrix);
       objects[layer.id] = group;
       scene.add(group);
       new THREE.GLTFLoader().parse(bytes(layer.data).buffer, "", (gltf) => {

@@ -14,6 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 import trimesh
 
+from recon.imaging.masks import mask_at
 from recon.surface.options import TextureOptions
 from recon.surface.raycast import render_ids, scene_of
 from recon.surface.texture.atlas import layout
@@ -31,9 +32,11 @@ __all__ = ["TexturedMesh", "texture_mesh"]
 
 
 def texture_mesh(mesh: trimesh.Trimesh, images: Sequence[np.ndarray], cameras: Sequence,
-                 options: TextureOptions = TextureOptions()) -> TexturedMesh:
+                 options: TextureOptions = TextureOptions(),
+                 masks: Sequence[np.ndarray | None] | None = None) -> TexturedMesh:
     """Texture ``mesh`` from undistorted photos (H x W x 3 uint8 RGB) taken by ``cameras`` (objects with
-    K, R, t in the COLMAP convention)."""
+    K, R, t in the COLMAP convention). ``masks`` (per photo, True = the subject, or None): a masked
+    pixel is treated as an occluder in front of everything, so no face takes a colour from it."""
     clock = time.perf_counter()
     timings = {}
 
@@ -48,6 +51,9 @@ def texture_mesh(mesh: trimesh.Trimesh, images: Sequence[np.ndarray], cameras: S
     photos = [np.asarray(im, np.float32) for im in images]
     scene = scene_of(vertices, faces)
     depths = [render_ids(scene, cam, im.shape[1], im.shape[0])["depth"] for cam, im in zip(cameras, images, strict=True)]
+    for depth, mask in zip(depths, masks or [], strict=False):
+        if mask is not None:
+            depth[~mask_at(mask, depth.shape[1], depth.shape[0])] = 0.0
     lap("depth maps")
     quality = view_quality(vertices, faces, images, cameras, depths, options.min_view_cosine,
                            options.border_margin)

@@ -1,0 +1,66 @@
+"""Masks on the surface: no face where the photos' masks say "not the subject".
+
+Depth maps already leave masked pixels out, but Poisson closes the surface across the holes it
+finds, so a mesh of a masked object can still hold faces over the background. A face is dropped
+when a view that sees it (its centre in front of that view's first hit, by ray casting the mesh)
+has its centre on a masked pixel. Dropping faces shows what lay behind them, so the test is repeated
+until no face goes (a few rounds).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from recon.imaging.masks import mask_at
+from recon.mvs.views import ViewCamera, scaled_to
+from recon.surface.raycast import render_ids, scene_of
+
+#: views are ray cast at most this size (longest side, px): enough to decide visibility
+RENDER_SIZE = 800
+#: a face centre counts as seen when it lies at most this far (relative) behind the view's first hit
+DEPTH_TOLERANCE = 1e-3
+
+
+def masked_faces(vertices: np.ndarray, faces: np.ndarray, views: list[ViewCamera],
+                 masks: dict[str, np.ndarray]) -> np.ndarray:
+    """Boolean per face: some view with a mask sees the face's centre on a masked pixel."""
+    scene = scene_of(vertices, faces)
+    centres = vertices[faces].mean(axis=1)
+    bad = np.zeros(len(faces), bool)
+    for view in views:
+        mask = masks.get(view.name)
+        if mask is None:
+            continue
+        scale = min(1.0, RENDER_SIZE / max(view.width, view.height))
+        width, height = max(1, round(view.width * scale)), max(1, round(view.height * scale))
+        cam = scaled_to(view, width, height)
+        depth = render_ids(scene, cam, width, height)["depth"]
+        x = centres @ cam.R.T + cam.t
+        z = x[:, 2]
+        front = z > 0
+        uv = np.full((len(x), 2), -1.0)
+        uv[front] = (x[front] @ cam.K.T)[:, :2] / z[front, None]
+        cols, rows = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+        inside = front & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
+        idx = np.flatnonzero(inside)
+        seen = z[idx] <= depth[rows[idx], cols[idx]] * (1 + DEPTH_TOLERANCE)
+        use = mask_at(mask, width, height)
+        bad[idx[seen & ~use[rows[idx[seen]], cols[idx[seen]]]]] = True
+    return bad
+
+
+def drop_masked_faces(mesh: trimesh.Trimesh, views: list[ViewCamera], masks: dict[str, np.ndarray],
+                      rounds: int = 4) -> tuple[trimesh.Trimesh, int]:
+    """The mesh without the faces :func:`masked_faces` finds (repeated up to ``rounds`` times), and how
+    many faces went."""
+    dropped = 0
+    for _ in range(rounds):
+        bad = masked_faces(np.asarray(mesh.vertices), np.asarray(mesh.faces), views, masks)
+        if not bad.any():
+            break
+        dropped += int(bad.sum())
+        mesh = mesh.copy()
+        mesh.update_faces(~bad)
+        mesh.remove_unreferenced_vertices()
+    return mesh, dropped
