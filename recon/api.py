@@ -119,11 +119,22 @@ def model_to_ground_truth(workspace: str | Path, gt: str | Path):
         raise ConfigError(f"--gt {exc}" if str(exc).startswith(str(gt)) else str(exc)) from None
 
 
-def synth(out: str | Path, scene: str | None = None, **kwargs) -> Path:
+def synth(out: str | Path, scene: str | None = None, camera: str = "pinhole", **kwargs) -> Path:
     """Render the seeded synthetic scene (recon.synth.render_scene) or, with ``scene``, a zoo scene
-    (recon.synth.zoo.render_zoo) into ``out``; keyword arguments given as None take their defaults."""
+    (recon.synth.zoo.render_zoo) into ``out``; ``camera`` fisheye or 360: recon.synth.wide's fisheye
+    orbit or room walk. Keyword arguments given as None take their defaults."""
     options = {k: v for k, v in kwargs.items() if v is not None}
-    if scene is None:
+    if camera != "pinhole":
+        from recon.synth.wide import render_fisheye_orbit, render_room_walk
+
+        if scene is not None or options.get("holdout"):
+            raise ConfigError(f"--camera {camera}: renders its own scene without hold-out views; leave out "
+                              "--scene and --holdout")
+        options.pop("holdout", None)
+        if camera == "360" and options.get("width", 1536) != 2 * options.get("height", 768):
+            raise ConfigError("--width/--height: a 360 panorama is twice as wide as high (e.g. 1536 x 768)")
+        (render_fisheye_orbit if camera == "fisheye" else render_room_walk)(Path(out), **options)
+    elif scene is None:
         from recon.synth import render_scene
 
         render_scene(Path(out), **options)

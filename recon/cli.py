@@ -65,8 +65,11 @@ def _parser() -> argparse.ArgumentParser:
     y.add_argument("--scene", help="a zoo scene by name (see --list); without it, the seeded scene of --seed")
     y.add_argument("--list", action="store_true", help="list the zoo's scenes and what each one tests")
     y.add_argument("--views", type=int, default=None, help="regular views (default 24, or the zoo scene's own)")
-    y.add_argument("--width", type=int, default=640)
-    y.add_argument("--height", type=int, default=480)
+    y.add_argument("--width", type=int, default=None, help="image width (default 640; 360: 1536)")
+    y.add_argument("--height", type=int, default=None, help="image height (default 480; 360: 768)")
+    y.add_argument("--camera", choices=["pinhole", "fisheye", "360"], default="pinhole",
+                   help="fisheye: the seeded scene from its orbit through a 176-degree fisheye (20 views); "
+                        "360: equirectangular panoramas walking through a room (16 views)")
     y.add_argument("--seed", type=int, default=0)
     y.add_argument("--holdout", type=int, default=None,
                    help="extra views held out for evaluation (default 0, or the zoo scene's own)")
@@ -153,7 +156,7 @@ def _dispatch(args) -> int:
                           verify=args.verify)
         width = max(len(r.name) for r in rows)
         for row in rows:
-            print(f"{row.name:<{width}}  {row.state:<7}  {row.why}".rstrip())
+            print(f"{row.name:<{width}}  {row.state:<7}  {row.why}{f'; {row.reuse}' if row.reuse else ''}".rstrip())
         return 0
     if args.command == "stages":
         _print_stages()
@@ -176,8 +179,8 @@ def _dispatch(args) -> int:
             return 0
         if args.out is None:
             raise ConfigError("synth: give OUT, the folder to render the scene into (or --list to list the zoo)")
-        out = api.synth(args.out, scene=args.scene, views=args.views, width=args.width, height=args.height,
-                        seed=args.seed, holdout=args.holdout)
+        out = api.synth(args.out, scene=args.scene, camera=args.camera, views=args.views, width=args.width,
+                        height=args.height, seed=args.seed, holdout=args.holdout)
         info = load_scene(out)
         print(f"recon: rendered {info.name or 'the seeded scene'}, {info.views} views and {info.holdout} held out, "
               f"into {out}")

@@ -77,10 +77,16 @@ class Executor:
             self._client = Client(address, timeout="20s")
         return self._client.get_executor(pure=False)
 
-    def shutdown(self) -> None:
+    def shutdown(self, abandon: bool = False) -> None:
+        """Stop the workers. ``abandon``: the run is stopping (Ctrl-C, SIGTERM, an error), so local
+        workers are killed rather than waited for: a PatchMatch view can take minutes, and every item
+        is written atomically, so the ones in flight are simply redone by the next run."""
         if self._pool is not None:
             if isinstance(self._pool, cf.ProcessPoolExecutor):
-                self._pool.shutdown(wait=True, cancel_futures=True)
+                if abandon:
+                    for process in list((self._pool._processes or {}).values()):  # no public way to stop them
+                        process.kill()
+                self._pool.shutdown(wait=not abandon, cancel_futures=True)
             else:  # Dask's executor (its shutdown has no cancel_futures)
                 self._pool.shutdown(wait=True)
             self._pool = None

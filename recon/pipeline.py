@@ -29,7 +29,7 @@ from recon.config import ConfigError, RunOptions, apply_overrides, build, read_y
 from recon.executor import Executor, check_spec
 from recon.logs import native_stderr_to
 from recon.options import output_options
-from recon.stage import REGISTRY, StageContext, StageError, resolve_path
+from recon.stage import REGISTRY, Stage, StageContext, StageError, resolve_path
 from recon.workspace import HashCache, Workspace, WorkspaceError
 
 log = logging.getLogger("recon")
@@ -201,7 +201,7 @@ def run(cfg: RunConfig, *, from_stage: str | None = None, until: str | None = No
                 try:
                     _unpublish_downstream(ws, name)
                     outputs[name] = _run_stage(cfg, ws, name, key, p.material[name], outputs, executor, result,
-                                               keep)
+                                               keep, reuse=name not in forced)
                 except (ConfigError, StageError):
                     raise
                 except Exception as exc:
@@ -213,19 +213,22 @@ def run(cfg: RunConfig, *, from_stage: str | None = None, until: str | None = No
                         f"{name}: the disk holding {ws.root} is full ({shutil.disk_usage(ws.root).free / 1e6:.1f} MB "
                         f"free); completed stages are kept{f' (last: {done[-1]})' if done else ''}: free some "
                         "space and run the same command again to resume") from exc
-        finally:
-            executor.shutdown()
+        except BaseException:  # stopped (Ctrl-C, SIGTERM) or failed: items in flight are redone next time
+            executor.shutdown(abandon=True)
+            raise
+        executor.shutdown()
         return result
 
 
 def _run_stage(cfg: RunConfig, ws: Workspace, name: str, key: str, material: dict,
-               outputs: dict[str, Path], executor: Executor, result: RunResult, keep: set[str]) -> Path:
+               outputs: dict[str, Path], executor: Executor, result: RunResult, keep: set[str],
+               reuse: bool = True) -> Path:
     stage = REGISTRY[name]
     out = ws.begin(name, key)
     ctx = StageContext(name=name, out=out, workspace=ws, images=cfg.images, seed=cfg.run.seed,
                        executor=executor, base=cfg.base, hashes=HashCache(ws), video=cfg.video,
                        upstream={d: outputs[d] for d in stage.upstream if d in outputs},
-                       settings=cfg.as_dict())
+                       settings=cfg.as_dict(), reuse=reuse)
     log.info("%s: running", name)
     start = time.time()
     with native_stderr_to(ws.meta / "logs" / "native.log"):
@@ -353,6 +356,7 @@ class StageStatus:
     state: str  # done | stale | missing
     why: str = ""
     key: str = ""
+    reuse: str = ""  # a stale or missing stage: what a run would reuse of earlier runs' per-item results
 
 
 def status(cfg: RunConfig, verify: bool = False) -> list[StageStatus]:
@@ -373,11 +377,26 @@ def status(cfg: RunConfig, verify: bool = False) -> list[StageStatus]:
         if previous is None:
             runs = ws.manifests(name)
             previous = runs[-1] if runs else None
+        reuse = _reusable(cfg, ws, p, name)
         if previous is None:
-            rows.append(StageStatus(name, "missing", "never run", key))
+            rows.append(StageStatus(name, "missing", "never run", key, reuse))
         else:
-            rows.append(StageStatus(name, "stale", _why_stale(previous, p.material[name]), key))
+            rows.append(StageStatus(name, "stale", _why_stale(previous, p.material[name]), key, reuse))
     return rows
+
+
+def _reusable(cfg: RunConfig, ws: Workspace, p: Plan, name: str) -> str:
+    """What a run of stage ``name`` would reuse (:meth:`Stage.reusable`), when the outputs it reads
+    are complete; else which stage must run first for that to be known."""
+    stage = REGISTRY[name]
+    upstream = [d for d in stage.upstream if d in p.keys]
+    waiting = next((d for d in upstream if not ws.is_complete(d, p.keys[d])), None)
+    if waiting is not None:
+        return f"reuse known once {waiting} has run" if type(stage).reusable is not Stage.reusable else ""
+    ctx = StageContext(name=name, out=Path(), workspace=ws, images=cfg.images, seed=cfg.run.seed, executor=None,
+                       base=cfg.base, hashes=HashCache(ws), video=cfg.video,
+                       upstream={d: ws.output_dir(d, p.keys[d]) for d in upstream})
+    return stage.reusable(ctx, cfg.stages[name]) or ""
 
 
 def _why_stale(previous: dict, now: dict) -> str:

@@ -145,9 +145,10 @@ class PreparedPhotos(_Listed):
 class FeatureDatabase(_Listed):
     """features: SIFT per photo, and COLMAP's database holding them with the cameras."""
 
-    required = ("database.db", _Listed.LISTING)
+    ITEMS = "items.json"
+    required = ("database.db", _Listed.LISTING, ITEMS)
     publish = {"database.db": "database.db"}
-    describe = ("features/<image>.npz", "database.db", _Listed.LISTING)
+    describe = ("features/<image>.npz", "database.db", _Listed.LISTING, ITEMS)
 
     @property
     def database(self) -> Path:
@@ -155,6 +156,13 @@ class FeatureDatabase(_Listed):
 
     def features(self, name: str) -> Path:
         return self.root / "features" / f"{name}.npz"
+
+    def item_keys(self) -> dict[str, str]:
+        """Image name -> the key of its features in the item store (:mod:`recon.items`)."""
+        return read_json(self.root / self.ITEMS) or {}
+
+    def write_item_keys(self, keys: dict[str, str]) -> None:
+        write_json(self.root / self.ITEMS, keys)
 
 
 class MatchDatabase(Product):
@@ -185,7 +193,7 @@ class SparseModel(Product):
 
     @property
     def georeference(self) -> Path:
-        """Where the model is on Earth (written when the photos carry GPS)."""
+        """Where the model is on Earth, or why it could not be placed (``georeferenced``: false)."""
         return self.root / self.GEOREFERENCE
 
     def model(self, k: int = 0) -> Path:

@@ -66,6 +66,12 @@ class Stage:
         """Do the work; return a small summary (counts, figures) recorded in the manifest."""
         raise NotImplementedError
 
+    def reusable(self, ctx: StageContext, cfg: Any) -> str | None:
+        """What a run would take from earlier runs' per-item results (:mod:`recon.items`), in a few
+        words, given its inputs (``ctx`` as in :meth:`run`, but nothing is written): ``recon status``.
+        None for stages that keep no such results."""
+        return None
+
 
 REGISTRY: dict[str, Stage] = {}
 
@@ -109,6 +115,8 @@ class StageContext:
     upstream: dict[str, Path] = field(default_factory=dict)
     #: the whole run's resolved config as plain data (what the report shows)
     settings: dict[str, Any] = field(default_factory=dict)
+    #: whether per-item results of earlier runs (:mod:`recon.items`) may be reused; not when forced
+    reuse: bool = True
 
     @property
     def log(self) -> logging.Logger:

@@ -11,6 +11,7 @@ Layout (docs/ARCHITECTURE.md, "The workspace")::
         recon.log                 the full log of every run
         cache/<stage>/<key>/      a completed stage output, with manifest.json
         cache/<stage>/<key>.partial/   an output being written (kept across kills: per-item resume)
+        items/<kind>/<key>.*      per-item results reused across stage keys (recon.items)
 
 User-facing paths are relative symbolic links into the cache, so a file the user opens is always
 the output of the stage's current key, and COLMAP, MeshLab or Blender read them in place.
@@ -98,6 +99,10 @@ class Workspace:
 
     def partial_dir(self, stage: str, key: str) -> Path:
         return self.stage_dir(stage) / f"{key[:16]}.partial"
+
+    def items_dir(self, kind: str) -> Path:
+        """The folder of the per-item results of ``kind`` (:mod:`recon.items`), shared by every key."""
+        return self.meta / "items" / kind
 
     def is_complete(self, stage: str, key: str) -> bool:
         return (self.output_dir(stage, key) / MANIFEST).is_file()

@@ -34,6 +34,12 @@ class Limits:
     viewer: bool = True              # include the 3D viewer (three.js: ~0.8 MB)
 
 
+#: what the page's mean reprojection error is (the one the sfm stage logs and records in its summary)
+REPROJECTION_DEFINITION = ("Mean reprojection error: the mean over the sparse points of each point's mean "
+                           "reprojection error in the photos that see it (COLMAP's definition, the figure the sfm "
+                           "stage logs). The per-photo column is the mean over that photo's observations.")
+
+
 @dataclass
 class Report:
     html: str
@@ -186,7 +192,7 @@ def _photos_section(rows: list[gather.ImageRow], figure) -> str:
 def _sparse_section(model: gather.Model, registration: dict, figure) -> str:
     models = registration.get("models", [])
     kpis = [_kpi(str(len(model.names)), "cameras"), _kpi(str(len(model.points)), "points"),
-            _kpi(f"{model.errors.mean():.3f} px" if len(model.errors) else "—", "mean reprojection error"),
+            _kpi(f"{model.mean_error:.3f} px" if len(model.point_errors) else "—", "mean reprojection error"),
             _kpi(f"{model.track_lengths.mean():.2f}" if len(model.track_lengths) else "—", "mean track length")]
     if len(models) > 1:
         kpis.append(_kpi(str(len(models)), "separate models (largest shown)"))
@@ -210,9 +216,11 @@ def _sparse_section(model: gather.Model, registration: dict, figure) -> str:
                            ("horizontal axis 1", "horizontal axis 2"))
     side = plots.scene_view(points, colors, model.centers, directions, np.array([a, up]), "Side view",
                             ("horizontal axis 1", "up"))
-    return (f'<div class="kpis">{"".join(kpis)}</div><div class="plots">'
+    return (f'<div class="kpis">{"".join(kpis)}</div><p class="muted" id="reprojection-definition">'
+            f'{_e(REPROJECTION_DEFINITION)}</p><div class="plots">'
             + figure(plots.track_lengths(model.track_lengths), "track-lengths", "Track length histogram")
-            + figure(plots.reprojection_errors(model.errors), "reprojection-errors", "Reprojection error histogram")
+            + figure(plots.reprojection_errors(model.point_errors, model.mean_error), "reprojection-errors",
+                     "Reprojection error of the sparse points")
             + figure(top, "top-view", "Cameras and points seen from above (up = the photos' average up)")
             + figure(side, "side-view", "Cameras and points seen from the side")
             + "</div>")
@@ -240,6 +248,15 @@ def _evaluation_section(evaluation: dict, figure) -> str:
     if poses:
         out.append(_table([(k, _fmt(v)) for k, v in poses.items()]))
         out.append('<div class="plots">' + figure(plots.pose_figures(poses), "pose-auc", "Pose accuracy") + "</div>")
+    for key, what in (("fused", "Fused cloud"), ("mesh", "Mesh")):
+        if evaluation.get(key):
+            out.append(f'<h3>{what} against the true surface</h3><div id="{key}-surface">'
+                       + _table([(k, _fmt(v)) for k, v in evaluation[key].items()]) + "</div>")
+    r = evaluation.get("fused_reprojection")
+    if r:
+        out.append('<h3>Fused cloud reprojected into the ground-truth cameras</h3><div id="fused-reprojection">'
+                   + _table([("median", f"{r['median_px']:.2f} px"), ("90th percentile", f"{r['p90_px']:.2f} px"),
+                             ("observations", r["observations"]), ("points", r["points"])]) + "</div>")
     return "".join(out)
 
 

@@ -58,19 +58,20 @@ def track_lengths(lengths: np.ndarray) -> bytes:
     return _png(fig)
 
 
-def reprojection_errors(errors: np.ndarray) -> bytes:
+def reprojection_errors(errors: np.ndarray, mean: float) -> bytes:
+    """Histogram of the points' reprojection errors (each point's mean over its track) and their ``mean``."""
     fig = _figure(5.5, 3.4)
     ax = fig.add_subplot()
     if len(errors):
         top = float(np.percentile(errors, 99.5)) or 1.0
         ax.hist(np.clip(errors, 0, top), bins=50, range=(0, top), color=REGISTERED)
-        ax.axvline(float(errors.mean()), color="k", lw=1, ls="--", label=f"mean {errors.mean():.3f} px")
+        ax.axvline(mean, color="k", lw=1, ls="--", label=f"mean {mean:.3f} px")
         ax.legend()
-        ax.set_title(f"Reprojection error: {len(errors)} observations, median {np.median(errors):.3f} px")
+        ax.set_title(f"Reprojection error: {len(errors)} points, median {np.median(errors):.3f} px")
     else:
-        ax.set_title("Reprojection error: no observations")
-    ax.set_xlabel("pixels")
-    ax.set_ylabel("observations")
+        ax.set_title("Reprojection error: no points")
+    ax.set_xlabel("pixels (mean over the photos seeing the point)")
+    ax.set_ylabel("points")
     return _png(fig)
 
 

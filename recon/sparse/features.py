@@ -59,6 +59,9 @@ class FeaturesConfig:
     domain_size_pooling: bool = opt(False, "DSP-SIFT descriptors (slower, more robust)")
     upright: bool = opt(False, "skip orientation estimation (photos all upright)")
     darkness_adaptivity: bool = opt(False, "adapt the threshold in dark images")
+    masks: bool = opt(False, "drop keypoints on masked pixels (preprocess.mask_dir), as COLMAP does: for turntable "
+                             "captures, whose background does not move with the object. Off: the background "
+                             "helps register the photos, and masks still keep it out of depth, mesh and texture")
 
     def __post_init__(self):
         if self.type.lower() in ONNX_ONLY:

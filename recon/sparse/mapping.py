@@ -13,12 +13,21 @@ from recon.sparse.database import image_ids, private_copy, read_only
 log = logging.getLogger(__name__)
 
 
-def reconstruct(database: Path, images: Path, cfg, seed: int) -> list:
-    """All models the mapper builds, largest first (``cfg`` is the sfm stage's config)."""
+def reconstruct(database: Path, images: Path, cfg, seed: int, start=None) -> list:
+    """All models the mapper builds, largest first (``cfg`` is the sfm stage's config). ``start``: a
+    model in the database's ids (:func:`recon.sparse.continuation.start_model`) that the incremental
+    mapper continues, registering the other photos into it."""
     import pycolmap
 
     pycolmap.set_random_seed(seed)
     with tempfile.TemporaryDirectory(prefix="recon-sfm-") as scratch, private_copy(database) as database:
+        start_path = ""
+        if start is not None:
+            start_path = str(Path(scratch) / "start")
+            Path(start_path).mkdir()
+            start.write(start_path)
+            scratch = str(Path(scratch) / "models")
+            Path(scratch).mkdir()
         if cfg.mapper == "global":
             opts = pycolmap.GlobalPipelineOptions()
             opts.min_num_matches = cfg.min_num_matches
@@ -29,7 +38,7 @@ def reconstruct(database: Path, images: Path, cfg, seed: int) -> list:
             models = pycolmap.global_mapping(str(database), str(images), scratch, opts)
         else:
             models = pycolmap.incremental_mapping(str(database), str(images), scratch,
-                                                  incremental_options(cfg, seed))
+                                                  incremental_options(cfg, seed), input_path=start_path)
     ordered = sorted(models.values(), key=lambda r: (-r.num_reg_images(), -r.num_points3D()))
     if cfg.final_ba_iterations:
         ordered = [final_bundle_adjustment(rec, cfg) for rec in ordered]

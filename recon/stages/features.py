@@ -6,8 +6,11 @@ calibration's parameters as given); keypoints where preprocess's mask is zero ar
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
+from recon.imaging.masks import mask_path
+from recon.items import ItemStore, item_key
 from recon.products import FeatureDatabase, PreparedPhotos
 from recon.sparse.database import opened, write_database
 from recon.sparse.features import FeaturesConfig, extract_photo, load_features
@@ -19,7 +22,7 @@ from recon.stage import Stage, StageContext, register
 @register
 class Features(Stage):
     name = "features"
-    version = 1
+    version = 2
     Config = FeaturesConfig
     requires = (PreparedPhotos,)
     produces = FeatureDatabase
@@ -31,8 +34,21 @@ class Features(Stage):
         settings = cfg.settings()
         out = ctx.output
         tasks = [(photos.images / img["name"], out.features(img["name"]), settings,
-                  (photos.masks / img["name"]).parent if img.get("masked") else None) for img in listing["images"]]
-        ctx.map(extract_photo, tasks, desc="features", done=lambda t: t[1].is_file())
+                  (photos.masks / img["name"]).parent if cfg.masks and img.get("masked") else None)
+                 for img in listing["images"]]
+        store = ItemStore(ctx.workspace.items_dir(self.name), ".npz")
+        named_keys = self.item_keys(ctx, cfg, photos, listing)
+        out.write_item_keys(named_keys)
+        keys = [*named_keys.values()]
+        reused = {i for i, (key, t) in enumerate(zip(keys, tasks))
+                  if ctx.reuse and not t[1].is_file() and store.link(key, t[1])}
+        if reused:
+            ctx.log.info("features: %d of %d photos' features reused from earlier runs", len(reused), len(tasks))
+        ctx.map(extract_photo, [t for i, t in enumerate(tasks) if i not in reused], desc="features",
+                done=lambda t: t[1].is_file())
+        for i, (key, (_, npz, _, _)) in enumerate(zip(keys, tasks)):
+            if i not in reused:
+                store.put(key, npz)
         counts = []
 
         def features():
@@ -47,7 +63,29 @@ class Features(Stage):
         _set_camera_params(out.database, listing)
         out.write_listing(listing)  # what the database holds, for matching (``ordered``)
         return {"images": len(counts), "median_features": int(sorted(counts)[len(counts) // 2]),
-                "min_features": int(min(counts)), **({"fisheye_focal": focals} if focals else {})}
+                "min_features": int(min(counts)), "reused": len(reused), "extracted": len(tasks) - len(reused),
+                **({"fisheye_focal": focals} if focals else {})}
+
+    def reusable(self, ctx: StageContext, cfg: FeaturesConfig) -> str:
+        photos = ctx.input(PreparedPhotos)
+        keys = self.item_keys(ctx, cfg, photos, photos.listing())
+        store = ItemStore(ctx.workspace.items_dir(self.name), ".npz")
+        return f"reuses the features of {sum(store.get(k) is not None for k in keys.values())} of {len(keys)} photos"
+
+    def item_keys(self, ctx: StageContext, cfg: FeaturesConfig, photos: PreparedPhotos,
+                  listing: dict) -> dict[str, str]:
+        """Per photo (by name, in the listing's order), the key of its features in the item store
+        (:mod:`recon.items`): the prepared image's content, its mask's where keypoints are masked,
+        and the extraction settings; nothing about the other photos."""
+        settings = dataclasses.asdict(cfg.settings())
+        keys = {}
+        for img in listing["images"]:
+            mask = mask_path(photos.masks, img["name"]) if cfg.masks and img.get("masked") else None
+            keys[img["name"]] = item_key({
+                "item": "sift", "version": self.version, "settings": settings,
+                "image": ctx.digest(photos.images / img["name"]),
+                "mask": ctx.digest(mask) if mask is not None and mask.is_file() else None})
+        return keys
 
 
 def _fisheye_focals(ctx: StageContext, listing: dict, npz: dict[str, Path], max_image_size: int) -> dict[int, float]:

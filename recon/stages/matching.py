@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import os
 import shutil
@@ -10,11 +11,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+from recon.items import ItemStore, item_key
 from recon.options import opt
 from recon.products import FeatureDatabase, MatchDatabase
 from recon.sparse import pairs as pairing
-from recon.sparse.database import image_ids, opened, read_descriptors, read_only
-from recon.sparse.matcher import Block, BlockError, PairOptions, match_block, read_block
+from recon.sparse.database import image_ids, opened, read_camera, read_descriptors, read_only
+from recon.sparse.matcher import Block, BlockError, PairOptions, match_block, read_block, write_block
 from recon.stage import Stage, StageContext, register
 
 
@@ -96,21 +98,73 @@ class Matching(Stage):
         named = [(names[i], names[j]) for i, j in pairs]
         ctx.output.pairs.write_text("".join(f"{a} {b}\n" for a, b in named))
         id_pairs = [(ids[a], ids[b]) for a, b in named]
+        store = ItemStore(ctx.workspace.items_dir(self.name), ".npz")
+        keys = dict(zip(id_pairs, pair_keys(cfg, ctx.seed, upstream, named)))
         folder = ctx.out / "blocks"
         done = _finished_pairs(folder, ctx)
-        todo = [pair for pair in id_pairs if pair not in done]
+        stored = {pair: path for pair in id_pairs if ctx.reuse and pair not in done
+                  and (path := store.get(keys[pair])) is not None}
+        todo = [pair for pair in id_pairs if pair not in done and pair not in stored]
         if done:
-            ctx.log.info("matching: %d pairs already done, resuming", len(id_pairs) - len(todo))
+            ctx.log.info("matching: %d pairs already done, resuming", len(done))
+        if stored:
+            ctx.log.info("matching: %d of %d pairs reused from earlier runs", len(stored), len(id_pairs))
         ctx.map(match_block, _blocks(todo, features, folder, cfg, ctx), desc="matching pairs",
                 done=lambda b: Path(b.out).exists(), size=lambda b: len(b.pairs))
+        results = _stored_results(stored)
+        for path in sorted(folder.glob("*.npz")):
+            for pair, (matches, geometry) in read_block(path).items():
+                results[pair] = matches, geometry
+                store.write(keys[pair], lambda tmp, p=pair: write_block(tmp, [(*p, *results[p])]))
         database = ctx.output.database
-        _write_database(features, folder, id_pairs, database)
+        _write_database(features, results, id_pairs, database)
         with opened(database) as db:
             matched = db.num_matched_image_pairs()
         verified = sum(1 for v in _inlier_counts(database) if v >= cfg.min_inliers)
-        shutil.rmtree(folder)
+        shutil.rmtree(folder, ignore_errors=True)
         ctx.log.info("matching: %s, %d pairs matched, %d verified", method, matched, verified)
-        return {"method": method, "pairs": matched, "verified_pairs": verified}
+        return {"method": method, "pairs": matched, "verified_pairs": verified, "reused_pairs": len(stored),
+                "matched_pairs": len(id_pairs) - len(stored)}
+
+
+    def reusable(self, ctx: StageContext, cfg: MatchingConfig) -> str:
+        upstream = ctx.input(FeatureDatabase)
+        with read_only(upstream.database) as db:
+            names = sorted(image_ids(db))
+        method, pairs = choose_pairs(cfg, upstream.database, names, ctx.seed, bool(upstream.listing().get("ordered")))
+        keys = pair_keys(cfg, ctx.seed, upstream, [(names[i], names[j]) for i, j in pairs])
+        store = ItemStore(ctx.workspace.items_dir(self.name), ".npz")
+        return f"reuses {sum(store.get(k) is not None for k in keys)} of {len(keys)} pairs ({method})"
+
+
+def pair_keys(cfg: MatchingConfig, seed: int, features: FeatureDatabase, named: list[tuple[str, str]]) -> list[str]:
+    """The key of each pair's verified matches in the item store (:mod:`recon.items`): both photos'
+    features (their own item keys), both cameras (verification uses the intrinsics and whether the
+    focal length is a prior) and the options matching and verification depend on; nothing about
+    the other photos, so the pairs of a set grown by new photos keep their keys."""
+    options = dataclasses.asdict(pair_options(cfg, seed))
+    del options["num_threads"]  # how the work is split, not its result
+    features_keys = features.item_keys()
+    with read_only(features.database) as db:
+        ids = image_ids(db)
+        cameras = {}
+        for name in {n for pair in named for n in pair}:
+            camera = read_camera(db, ids[name])
+            cameras[name] = [camera.model.name, camera.width, camera.height, camera.params.tolist(),
+                             camera.has_prior_focal_length]
+    return [item_key({"item": "verified_pair", "version": Matching.version, "options": options,
+                      "features": [features_keys[a], features_keys[b]], "cameras": [cameras[a], cameras[b]]})
+            for a, b in named]
+
+
+def _stored_results(stored: dict[tuple[int, int], Path]) -> dict[tuple[int, int], tuple]:
+    """The matches and geometry of pairs found in the item store, under this run's image and camera
+    ids (an item keeps the ids of the run that made it)."""
+    results = {}
+    for pair, path in stored.items():
+        (matches, geometry), = read_block(path).values()
+        results[pair] = matches, geometry
+    return results
 
 
 def _blocks(pairs: list[tuple[int, int]], features: Path, folder: Path, cfg: MatchingConfig,
@@ -141,19 +195,17 @@ def _finished_pairs(folder: Path, ctx: StageContext) -> set[tuple[int, int]]:
     return done
 
 
-def _write_database(features: Path, folder: Path, pairs: list[tuple[int, int]], database: Path) -> None:
-    """The features database with the matches and geometries of ``pairs``, in that order, from the
-    block files in ``folder``; written by this process alone.
+def _write_database(features: Path, results: dict[tuple[int, int], tuple], pairs: list[tuple[int, int]],
+                    database: Path) -> None:
+    """The features database with the matches and geometries of ``pairs``, in that order; written
+    by this process alone.
 
     The disk is checked first: SQLite on a full disk is an error COLMAP does not recover from. Bound:
-    the blocks' size, twice (SQLite's journal), plus the database and 4 MiB."""
-    files = sorted(folder.glob("*.npz"))
-    need = 2 * sum(f.stat().st_size for f in files) + features.stat().st_size + (4 << 20)
+    the matches' size, twice (SQLite's journal), plus the database and 4 MiB."""
+    matches = sum(m.nbytes + g.inlier_matches.nbytes + 512 for m, g in results.values())
+    need = 2 * matches + features.stat().st_size + (4 << 20)
     if shutil.disk_usage(database.parent).free < need:
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(database.parent))
-    results = {}
-    for path in files:
-        results.update(read_block(path))
     tmp = database.with_name(".database.db.tmp")
     shutil.copyfile(features, tmp)
     with opened(tmp) as db:

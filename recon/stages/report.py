@@ -35,17 +35,20 @@ class ReportConfig:
     gt: str | None = opt(None, "ground truth for evaluation figures: a dataset folder, *_par.txt, Strecha folder, "
                                "transforms.json or a synthetic scene; relative to the config file")
     viewer: bool = opt(True, "include the 3D viewer (adds ~0.8 MB of three.js to the page)")
-    max_points: int = opt(200_000, "most sparse / dense points in the viewer (a random subset beyond)", ge=1000)
+    max_points: int = opt(100_000, "most sparse / dense points in the viewer (a random subset beyond)", ge=1000)
     max_mesh_faces: int = opt(300_000, "largest mesh.ply (faces) shown in the viewer when there is no "
                                        "textured.glb", ge=0)
-    max_glb_mb: float = opt(20.0, "largest textured.glb embedded in the viewer, MB", ge=0)
+    max_glb_mb: float = opt(4.0, "largest textured.glb embedded in the viewer as it is, MB; a larger one is shown "
+                                 "as a copy made for the page (model_faces, model_texture)", ge=0)
+    model_faces: int = opt(30_000, "faces of the page's copy of a large textured.glb (decimated)", ge=100)
+    model_texture: int = opt(2048, "largest texture side of that copy, texels", ge=64, le=8192)
     thumbnails: int = opt(12, "depth / normal map thumbnails shown", ge=0)
 
 
 @register
 class Report(Stage):
     name = "report"
-    version = 1
+    version = 2
     Config = ReportConfig
     requires = (MatchDatabase, SparseModel)
     optional = (DenseScene, DepthMaps, FusedCloud, SurfaceMesh, TexturedModel)
@@ -73,7 +76,8 @@ class Report(Stage):
             **optional)
         evaluation = _evaluate(ctx, cfg) if cfg.gt else None
         limits = Limits(max_points=cfg.max_points, max_mesh_faces=cfg.max_mesh_faces,
-                        max_glb_bytes=int(cfg.max_glb_mb * 1e6), thumbnails=cfg.thumbnails, viewer=cfg.viewer)
+                        max_glb_bytes=int(cfg.max_glb_mb * 1e6), model_faces=cfg.model_faces,
+                        model_texture=cfg.model_texture, thumbnails=cfg.thumbnails, viewer=cfg.viewer)
         report = build_report(sources, title=f"recon report: {ws.root.name}", evaluation=evaluation, limits=limits)
         ctx.output.path.write_text(report.html, encoding="utf-8")
         ctx.log.info("report: %s (%.1f MB)", ws.root / ReportProduct.publish["report.html"], len(report.html) / 1e6)

@@ -6,6 +6,11 @@ Cameras come from the database (preprocess's intrinsics); when they are a calibr
 Last step: with enough GPS-tagged photos the models are georeferenced (:mod:`recon.sparse.georeference`):
 written in local East-North-Up metres, so every later stage's output is too; ``georeference.json``
 records the frame, the similarity applied and the GPS residuals.
+
+Photos added to a finished workspace: the newest earlier model made with the same options, whose
+photos are all still there with the same features, is continued instead of mapping every photo
+again (``continue_from_previous``, :mod:`recon.sparse.continuation`); the result is put back in
+that model's frame, so the outputs made from it stay where they were.
 """
 
 from __future__ import annotations
@@ -13,12 +18,13 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Literal
 
+from recon.config import to_dict
 from recon.files import write_json
-from recon.options import opt
-from recon.products import MatchDatabase, PreparedPhotos, SparseModel
-from recon.sparse import georeference, lens, mapping
+from recon.options import opt, output_options
+from recon.products import FeatureDatabase, MatchDatabase, PreparedPhotos, SparseModel
+from recon.sparse import continuation, georeference, lens, mapping
 from recon.sparse.frame import level_model
-from recon.stage import Stage, StageContext, StageError, register
+from recon.stage import Stage, StageContext, StageError, producer, register
 
 
 @dataclass(frozen=True)
@@ -43,9 +49,14 @@ class SfmConfig:
                                      "(multi-threaded runs agree to ~1e-3 of the camera spread), slower")
     georeference: Literal["auto", "off"] = opt(
         "auto", "auto: models in local East-North-Up metres when at least 3 registered photos, and more than "
-                "half, have EXIF GPS (robust fit to the GPS positions); off: the mapper's arbitrary frame")
+                "half, have EXIF GPS (robust fit to the GPS positions); off, or too little GPS: the photos' average "
+                "up along +Z, scale and position as the mapper left them")
     gps_sigma: float = opt(0.0, "GPS accuracy in metres for every photo (0: each photo's GPSHPositioningError, "
                                 "else GPSDOP, else 5 m); a photo farther than 3.4 sigma is an outlier", ge=0)
+    continue_from_previous: bool = opt(
+        True, "incremental mapper: when photos were added, continue the workspace's previous model (same sfm "
+              "options, all its photos still there with the same features) and keep its frame, instead of "
+              "mapping every photo again")
 
 
 @register
@@ -53,7 +64,7 @@ class Sfm(Stage):
     name = "sfm"
     version = 4
     Config = SfmConfig
-    requires = (PreparedPhotos, MatchDatabase)
+    requires = (PreparedPhotos, FeatureDatabase, MatchDatabase)
     produces = SparseModel
     uses_seed = True
     summary = "incremental (or global) SfM with bundle adjustment; every model kept, largest as sparse/0"
@@ -63,20 +74,24 @@ class Sfm(Stage):
         photos = ctx.input(PreparedPhotos)
         images = photos.geometric  # original colours for the points
         listing = photos.listing()
+        previous, previous_key = self.previous_model(ctx, cfg)
         cameras = listing["cameras"]
         if cameras and all(c["fixed"] for c in cameras):
             ctx.log.info("sfm: calibrated cameras kept fixed")
             cfg = replace(cfg, refine_focal_length=False, refine_principal_point=False, refine_extra_params=False)
-        models = mapping.reconstruct(database, images, cfg, ctx.seed)
+        start = None if previous is None else continuation.start_model(previous, *continuation.database_ids(database))
+        if start is not None:
+            ctx.log.info("sfm: continuing the previous model (%s, %d photos) with the new photos",
+                         previous_key[:16], start.num_reg_images())
+        models = mapping.reconstruct(database, images, cfg, ctx.seed, start)
         report = mapping.registration_report(database, models, cfg.min_num_matches, cfg.init_min_tri_angle)
         if not models:
             raise StageError(f"sfm: no model could be built. {report['reason']}")
+        kept = _keep_frame(ctx, models, previous) if start is not None else None
         georef = _georeference(ctx, cfg, models, listing["images"])
-        if not georef["georeferenced"]:  # georeferenced models are in ENU, already up along +Z
-            report["frame"] = {"up": "+Z, the photos' average up",
-                               "rotations_from_mapper": [level_model(rec).tolist() for rec in models]}
-        else:
-            report["frame"] = {"up": "+Z, local East-North-Up (georeference.json)"}
+        report["frame"] = _level(models, georef, kept)
+        report["mapping"] = ({"continued_from": previous_key[:16], "previous_photos": start.num_reg_images()}
+                             if start is not None else "from scratch")
         for k, rec in enumerate(models):
             path = ctx.output.model(k)
             path.mkdir(parents=True, exist_ok=True)
@@ -95,7 +110,70 @@ class Sfm(Stage):
                 ctx.log.warning("sfm: %s", why)
         return {"models": len(models), "registered": best.num_reg_images(), "images": total,
                 "points": best.num_points3D(), "mean_reproj_error": round(best.compute_mean_reprojection_error(), 3),
-                "georeferenced": georef["georeferenced"]}
+                "georeferenced": georef["georeferenced"],
+                "mapping": "continued" if start is not None else "from scratch",
+                **({"continued_from": previous_key[:16]} if start is not None else {})}
+
+    def reusable(self, ctx: StageContext, cfg: SfmConfig) -> str:
+        previous, key = self.previous_model(ctx, cfg)
+        if previous is None:
+            return "maps every photo (no previous model to continue)"
+        return f"continues the previous model {key[:16]} ({previous.num_reg_images()} photos)"
+
+    def previous_model(self, ctx: StageContext, cfg: SfmConfig):
+        """The model to continue (a pycolmap Reconstruction) and the key of its output, or (None, None):
+        the newest earlier output of this stage with the same options and seed, undamaged, all of whose
+        photos are among this run's with the same features (their item keys, :mod:`recon.items`)."""
+        if not (cfg.continue_from_previous and cfg.mapper == "incremental" and ctx.reuse):
+            return None, None
+        import pycolmap
+
+        ws, features = ctx.workspace, producer(FeatureDatabase)
+        current = ctx.input(FeatureDatabase).item_keys()
+        config = to_dict(output_options(cfg))
+        for manifest in reversed(ws.manifests(self.name)):
+            key = manifest.get("key", "")
+            if (manifest.get("version"), manifest.get("seed"), manifest.get("config")) != (self.version, ctx.seed, config) \
+                    or ws.verify(self.name, key) is not None:
+                continue
+            before = FeatureDatabase(ws.output_dir(features, manifest["upstream"].get(features, ""))).item_keys()
+            model = pycolmap.Reconstruction(str(SparseModel(ws.output_dir(self.name, key)).model()))
+            if all(image.name in current and before.get(image.name) == current[image.name]
+                   for image in model.images.values()):
+                return model, key
+        return None, None
+
+
+def _keep_frame(ctx: StageContext, models: list, previous) -> dict | None:
+    """Put the model that continued ``previous`` back in its frame (:mod:`recon.sparse.continuation`);
+    which model, and how well its photos' centres fit their previous places."""
+    shared = [len({i.name for i in rec.images.values()} & {i.name for i in previous.images.values()})
+              for rec in models]
+    k = max(range(len(models)), key=shared.__getitem__)
+    fit = continuation.align_to_previous(models[k], previous, ctx.seed)
+    if fit is None:
+        return None
+    ctx.log.info("sfm: model %d kept in the previous model's frame (%d photos, centres' RMS %.3g)", k,
+                 fit["photos"], fit["rms"])
+    return {"model": k, **fit}
+
+
+def _level(models: list, georef: dict, kept: dict | None = None) -> list[dict]:
+    """Put each model that GPS did not place with its up along +Z (:mod:`recon.sparse.frame`; a
+    georeferenced model is in local East-North-Up, up along +Z already; the model ``kept`` in a
+    previous model's frame stays in it); how, per model."""
+    placed = [georef["georeferenced"]] + [other["georeferenced"] for other in georef.get("other_models", [])]
+    frames = []
+    for k, rec in enumerate(models):
+        if k < len(placed) and placed[k]:
+            frames.append({"model": k, "frame": "local East-North-Up metres (georeference.json)"})
+        elif kept is not None and kept["model"] == k:
+            frames.append({"model": k, "frame": "the previous model's (up along +Z), fitted on its photos' centres",
+                           "fit": kept})
+        else:
+            frames.append({"model": k, "frame": "up along +Z: the photos' average up",
+                           "rotation_from_mapper": level_model(rec).tolist()})
+    return frames
 
 
 def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[dict]) -> dict:

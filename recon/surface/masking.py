@@ -44,9 +44,8 @@ def masked_faces(vertices: np.ndarray, faces: np.ndarray, views: list[ViewCamera
         cols, rows = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
         inside = front & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
         idx = np.flatnonzero(inside)
-        seen = z[idx] <= depth[rows[idx], cols[idx]] * (1 + DEPTH_TOLERANCE)
-        use = mask_at(mask, width, height)
-        bad[idx[seen & ~use[rows[idx[seen]], cols[idx[seen]]]]] = True
+        idx = idx[z[idx] <= depth[rows[idx], cols[idx]] * (1 + DEPTH_TOLERANCE)]  # the faces it sees
+        bad[idx[~mask_at(mask, width, height)[rows[idx], cols[idx]]]] = True
     return bad
 
 

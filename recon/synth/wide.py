@@ -173,7 +173,7 @@ def _render(out: Path, scene: Scene, cams: dict[str, WideView], seed: int, path:
     bmin, bmax = scene.bbox
     info = SceneInfo(out, seed, len(cams), 0, first.width, first.height, path, "jpg",
                      tuple(float(v) for v in bmin), tuple(float(v) for v in bmax),
-                     float(np.linalg.norm(hi - lo)) if np.isfinite(lo).all() else 0.0, tuple(cams), ())
+                     float(np.linalg.norm(hi - lo)) if np.isfinite(lo).all() else 0.0, tuple(cams), (), name=path)
     meta = {k: v for k, v in dataclasses.asdict(info).items() if k != "root"}
     meta.update(camera_model=first.model, depth="range",
                 extent_definition="diagonal of the axis-aligned bounding box of the surface points the views see")

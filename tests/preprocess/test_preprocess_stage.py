@@ -116,7 +116,8 @@ def test_resize_scales_cameras_and_masks(small_scene, tmp_path):
     for name in names[:4]:  # the others have no mask: all of them is used
         Image.fromarray(hidden).save(masks / f"{name}.png")
     ws = tmp_path / "ws"
-    recon.run({"until": "features", "preprocess": {"ops": [{"op": "resize", "scale": 0.5}], "mask_dir": str(masks)}},
+    recon.run({"until": "features", "preprocess": {"ops": [{"op": "resize", "scale": 0.5}], "mask_dir": str(masks)},
+               "features": {"masks": True}},
               images=str(small_scene / "images"), workspace=str(ws))
     out = output(ws, "preprocess")
     listing = read_json(out / "images.json")

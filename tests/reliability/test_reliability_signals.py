@@ -13,6 +13,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from reliability_checks import SPARSE, assert_same_reconstruction, cli, complete_outputs, partial_outputs
 
 from recon.workspace import read_json
@@ -62,13 +64,14 @@ def test_sigterm_between_stages_is_one_line_and_keeps_the_finished_stage(copy_wo
     assert_same_reconstruction(copy_workspace, sparse_workspace)
 
 
+@pytest.mark.slow
 def test_sigterm_to_the_whole_run_stops_workers_quietly_and_the_rerun_resumes(small_scene, tmp_path):
     """A batch scheduler (``scancel``) or ``kill -- -PGID`` signals every process: the workers (which
     preload pycolmap) end without a native stack dump, the main process says one line, and the
     photos whose features were written are not computed again."""
     ws = tmp_path / "ws"
     args = ["run", str(SPARSE), "--images", str(small_scene / "images"), "--workspace", str(ws),
-            "-o", "executor=processes:2"]
+            "-o", "executor=processes:2", "--until", "features"]
     proc = subprocess.Popen([sys.executable, "-m", "recon.cli", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120

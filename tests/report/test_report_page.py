@@ -3,6 +3,10 @@ the 3D viewer draws something and changes when orbited; per-photo table; unregis
 
 from __future__ import annotations
 
+import base64
+import html
+import io
+import json
 import re
 import shutil
 from html.parser import HTMLParser
@@ -12,7 +16,10 @@ import pytest
 import trimesh
 
 from recon.mvs.colmap_io import write_map
-from recon.report import Sources, build_report
+from recon.report import Limits, Sources, build_report
+from recon.report.page import THREE
+from recon.surface.export import Z_UP_TO_GLTF, write_glb
+from recon.surface.texture.model import TexturedMesh
 
 PLOTS = {"per-image", "pair-matrix", "track-lengths", "reprojection-errors", "top-view", "side-view", "pose-auc"}
 
@@ -116,7 +123,7 @@ def test_report_shows_dense_maps_mesh_and_textured_model(small_scene, sparse_wor
     trimesh.PointCloud(points, colors=np.tile([200, 120, 40, 255], (len(points), 1))).export(tmp_path / "fused.ply")
     mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.tile([90, 160, 220, 255], (len(mesh.vertices), 1)))
     mesh.export(tmp_path / "mesh.ply")
-    mesh.export(tmp_path / "textured.glb")
+    mesh.copy().apply_transform(Z_UP_TO_GLTF).export(tmp_path / "textured.glb")  # glTF's Y up, as write_glb
     sources = Sources(database=sparse_workspace / "database.db", model=sparse_workspace / "sparse" / "0",
                       stereo=stereo, fused=tmp_path / "fused.ply", mesh=tmp_path / "mesh.ply",
                       textured=tmp_path / "textured.glb")
@@ -184,3 +191,111 @@ def test_temple_ring_report_lists_47_registered_photos(datasets, tmp_path, run_r
     for cells in registered:
         assert int(cells[3]) > 100 and int(cells[5]) > 0 and int(cells[6]) > 0 and 0 < float(cells[7]) < 2
     assert "auc@5" in (ws / "report.html").read_text()
+
+
+def _viewer_data(page: str) -> dict:
+    return json.loads(re.search(r'<script id="viewer-data" type="application/json">(.*?)</script>', page, re.S)[1])
+
+
+def _quadrant_texture_model(points: np.ndarray, path, cells: int = 160, texels: int = 1024):
+    """A wavy open sheet over the sparse points, textured red / green / blue / yellow by quadrant (with
+    noise, so the PNG is large), written as textured.glb; returns its world vertices."""
+    lo, hi = np.percentile(points, [10, 90], axis=0)
+    u, v = np.meshgrid(np.linspace(0, 1, cells + 1), np.linspace(0, 1, cells + 1))
+    z = np.median(points[:, 2]) + 0.03 * (hi[0] - lo[0]) * np.sin(12 * u) * np.cos(9 * v)
+    vertices = np.column_stack([lo[0] + u.ravel() * (hi[0] - lo[0]), lo[1] + v.ravel() * (hi[1] - lo[1]), z.ravel()])
+    idx = np.arange((cells + 1) ** 2).reshape(cells + 1, cells + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    uv = np.column_stack([u.ravel(), v.ravel()])[faces]
+    half = texels // 2
+    texture = np.zeros((texels, texels, 3), np.int16)
+    texture[:half, :half], texture[:half, half:] = (220, 30, 30), (30, 200, 30)   # top of the image: v near 1
+    texture[half:, :half], texture[half:, half:] = (30, 60, 230), (230, 210, 30)
+    texture += np.random.default_rng(0).integers(-25, 26, texture.shape, dtype=np.int16)
+    textured = TexturedMesh(vertices, faces, uv, np.clip(texture, 0, 255).astype(np.uint8),
+                            np.zeros(len(faces), np.int64), np.zeros((len(vertices), 3), np.uint8))
+    write_glb(textured, path)
+    return vertices
+
+
+def test_large_textured_model_is_shown_as_a_page_copy(sparse_workspace, tmp_path, browser):
+    """A textured.glb over the size limit is embedded as a decimated copy with a smaller baked texture:
+    the page stays small, the copy sits where the model is, and Chromium draws its texture's colours."""
+    from recon.report.gather import read_model
+
+    model, _ = read_model(sparse_workspace / "sparse" / "0")
+    vertices = _quadrant_texture_model(model.points, tmp_path / "textured.glb")
+    glb_size = (tmp_path / "textured.glb").stat().st_size
+    assert glb_size > 3_000_000
+    sources = Sources(database=sparse_workspace / "database.db", model=sparse_workspace / "sparse" / "0",
+                      textured=tmp_path / "textured.glb")
+    limits = Limits(max_glb_bytes=1_000_000, model_faces=3000, model_texture=512)
+    report = build_report(sources, title="large model", limits=limits)
+    assert len(report.html) - THREE.stat().st_size < 1_500_000  # the figures, the points and the copy
+    assert "shown as a copy made for this page" in report.html
+
+    data = _viewer_data(report.html)
+    layer = next(layer for layer in data["layers"] if layer["id"] == "textured")
+    copy = trimesh.load(io.BytesIO(base64.b64decode(layer["data"])), file_type="glb", force="mesh")
+    assert 2000 < len(copy.faces) <= 3000 and max(copy.visual.material.baseColorTexture.size) <= 512
+    copy.apply_transform(np.array(layer["matrix"]).reshape(4, 4).T)  # into the viewer's frame
+    assert np.allclose(copy.bounds, np.array([vertices.min(0), vertices.max(0)]) - data["origin"],
+                       atol=0.02 * np.ptp(vertices[:, 0]))
+    # the baked texture puts each quadrant's colour where the model has it
+    centre = copy.triangles_center + data["origin"]
+    u, v = ((centre[:, :2] - vertices.min(0)[:2]) / np.ptp(vertices[:, :2], axis=0)).T
+    clear = (np.abs(u - 0.5) > 0.03) & (np.abs(v - 0.5) > 0.03)
+    expected = np.where(v > 0.5, np.where(u < 0.5, 0, 1), np.where(u < 0.5, 2, 3))  # red, green, blue, yellow
+    texture = np.asarray(copy.visual.material.baseColorTexture.convert("RGB"), float)
+    face_uv = copy.visual.uv[copy.faces].mean(axis=1)
+    colour = texture[((1 - face_uv[:, 1]) * texture.shape[0]).astype(int).clip(0, texture.shape[0] - 1),
+                     (face_uv[:, 0] * texture.shape[1]).astype(int).clip(0, texture.shape[1] - 1)]
+    palette = np.array([(220, 30, 30), (30, 200, 30), (30, 60, 230), (230, 210, 30)], float)
+    nearest = np.linalg.norm(colour[:, None] - palette[None], axis=2).argmin(axis=1)
+    assert (nearest[clear] == expected[clear]).mean() > 0.97
+
+    page = tmp_path / "report.html"
+    page.write_text(report.html)
+    browser.open(page.as_uri())
+    browser.wait_for("document.getElementById('viewer').dataset.state === 'ready'")
+    browser.evaluate("[...document.querySelectorAll('#viewer .layers label')].filter(l => "
+                     "!l.textContent.includes('textured')).forEach(l => l.querySelector('input').click())")
+    pixels = browser.screenshot("#viewer canvas").astype(int)
+    r, g, b = pixels[..., 0], pixels[..., 1], pixels[..., 2]
+    shares = {"red": ((r > 1.8 * g) & (r > 1.8 * b)).mean(), "green": ((g > 1.8 * r) & (g > 1.8 * b)).mean(),
+              "blue": ((b > 1.8 * r) & (b > 1.8 * g)).mean(), "yellow": ((r > 2 * b) & (g > 2 * b)).mean()}
+    assert min(shares.values()) > 0.002, shares  # a grey, untextured sheet has none of them
+    assert browser.errors() == []
+
+
+def test_mean_reprojection_error_is_the_sfm_stages(report_workspace):
+    """One definition: the page's mean reprojection error is the sfm stage's (COLMAP's mean over points
+    of each point's mean error), not the mean over observations, and the page says which it is."""
+    import pycolmap
+
+    from recon.workspace import Workspace
+
+    page = (report_workspace / "report.html").read_text()
+    shown = float(re.search(r"<b>([0-9.]+) px</b><span>mean reprojection error</span>", page)[1])
+    ws = Workspace(report_workspace)
+    logged = ws.manifest("sfm", ws.state()["sfm"])["summary"]["mean_reproj_error"]
+    assert shown == logged
+    rec = pycolmap.Reconstruction(str(report_workspace / "sparse" / "0"))
+    per_observation = []
+    for image in rec.images.values():
+        cam = rec.camera(image.camera_id)
+        for p in image.points2D:
+            if p.has_point3D():
+                xy = cam.img_from_cam(image.cam_from_world() * rec.point3D(p.point3D_id).xyz)
+                per_observation.append(np.linalg.norm(np.asarray(xy) - p.xy))
+    assert round(float(np.mean(per_observation)), 3) != logged  # the two definitions differ on this scene
+    assert html.escape("COLMAP's definition, the figure the sfm stage logs") in page
+
+
+def test_evaluation_shows_the_fused_clouds_reprojection():
+    figures = {"fused_reprojection": {"median_px": 0.4321, "p90_px": 1.234, "observations": 12345, "points": 678}}
+    page = build_report(Sources(), title="evaluation", evaluation=figures, limits=Limits(viewer=False)).html
+    table = re.search(r'<div id="fused-reprojection">(.*?)</div>', page, re.S)[1]
+    for text in ("0.43 px", "1.23 px", "12345", "678"):
+        assert text in table

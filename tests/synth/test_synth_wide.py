@@ -110,3 +110,16 @@ def test_surface_evaluation_reads_the_range_maps(which, request):
     seen = observed_points(scene, 0.002 * scene.extent / 2)
     figures = surface_metrics(seen, scene)  # the observable surface itself: on the true mesh, complete
     assert figures["accuracy@0.002"] > 99.9 and figures["completeness@0.002"] > 99.9
+
+
+def test_recon_synth_renders_them(tmp_path):
+    from recon import api
+    from recon.config import ConfigError
+
+    out = api.synth(tmp_path / "pano", camera="360", views=2, width=128, height=64, seed=0, holdout=None)
+    assert json.loads((out / "gt" / "scene.json").read_text())["camera_model"] == "EQUIRECTANGULAR"
+    assert load_scene(out).name == "room_walk" and load_scene(out).views == 2
+    with pytest.raises(ConfigError, match="twice as wide"):
+        api.synth(tmp_path / "bad", camera="360", width=128, height=128)
+    with pytest.raises(ConfigError, match="--scene"):
+        api.synth(tmp_path / "bad", camera="fisheye", scene="anything")

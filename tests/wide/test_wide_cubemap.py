@@ -58,6 +58,8 @@ def test_faces_are_the_pinhole_views_at_the_panoramas_poses(workspace):
             image = faces.find_image_with_name(face_name(name, face))
             cam = faces.cameras[image.camera_id]
             pose = image.cam_from_world()
+            np.testing.assert_allclose(pose.rotation.matrix(), np.array(FACES[face]) @ view.R, atol=1e-9)
+            np.testing.assert_allclose(pose.translation, np.array(FACES[face]) @ view.t, atol=1e-9)
             truth, _, _ = renderer.render(Camera(cam.calibration_matrix(), pose.rotation.matrix(),
                                                  np.asarray(pose.translation), cam.width, cam.height))
             got = np.asarray(Image.open(dense / "images" / face_name(name, face)), dtype=float)

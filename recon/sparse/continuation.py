@@ -1,0 +1,83 @@
+"""Continuing a finished model with new photos instead of mapping them all again.
+
+COLMAP's incremental mapper starts from an existing reconstruction when given one
+(``incremental_mapping(..., input_path=...)``): it registers the database's other images into it,
+triangulates and bundle-adjusts. The reconstruction must speak the database's ids, and a photo
+added to the folder shifts them (ids follow the names' order), so :func:`start_model` rewrites the
+previous model with the current ids: same cameras, poses, keypoints and tracks. The mapper then
+normalises the model's scale and position while it grows; :func:`align_to_previous` puts the
+result back in the previous model's frame, fitted on the photos both models registered, so every
+output made in that frame (levelled, or georeferenced) stays in it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from recon.geometry.transforms import align_similarity
+from recon.sparse.database import read_only
+
+
+def start_model(previous, image_ids: dict[str, int], camera_ids: dict[str, int]):
+    """``previous`` (a pycolmap Reconstruction) with the current database's ids: ``image_ids`` and
+    ``camera_ids`` give each image name its image id and camera id. None when the previous model
+    holds an image the database lacks, or one camera that the database splits in two."""
+    import pycolmap
+
+    names = {image.name for image in previous.images.values()}
+    if not names <= image_ids.keys():
+        return None
+    cameras: dict[int, int] = {}
+    for image in previous.images.values():
+        if cameras.setdefault(image.camera_id, camera_ids[image.name]) != camera_ids[image.name]:
+            return None
+    rec = pycolmap.Reconstruction()
+    for old_id, new_id in cameras.items():
+        old = previous.cameras[old_id]
+        camera = pycolmap.Camera(model=old.model, width=old.width, height=old.height, params=old.params,
+                                 camera_id=new_id)
+        camera.has_prior_focal_length = old.has_prior_focal_length
+        rec.add_camera_with_trivial_rig(camera)
+    new_ids = {}
+    for image in previous.images.values():
+        new_ids[image.image_id] = image_ids[image.name]
+        keypoints = np.array([p.xy for p in image.points2D], dtype=np.float64).reshape(-1, 2)
+        copy = pycolmap.Image(name=image.name, keypoints=keypoints, camera_id=cameras[image.camera_id],
+                              image_id=image_ids[image.name])
+        rec.add_image_with_trivial_frame(copy, image.cam_from_world())
+    for point in previous.points3D.values():
+        track = pycolmap.Track()
+        for element in point.track.elements:
+            track.add_element(new_ids[element.image_id], element.point2D_idx)
+        rec.add_point3D(point.xyz, track, point.color)
+    return rec
+
+
+def align_to_previous(rec, previous, seed: int = 0) -> dict | None:
+    """Move ``rec`` (in place) into the frame of ``previous`` by the similarity that best maps its
+    photos' centres onto theirs in ``previous`` (robust: a photo the new photos moved is left out).
+    Returns the photos used, the scale applied and the centres' RMS residual in the previous
+    frame's units; None when the two share fewer than 3 registered photos."""
+    import pycolmap
+
+    before = {image.name: image.projection_center() for image in previous.images.values() if image.has_pose}
+    now = {image.name: image.projection_center() for image in rec.images.values() if image.has_pose}
+    shared = sorted(before.keys() & now.keys())
+    if len(shared) < 3:
+        return None
+    src = np.array([now[n] for n in shared])
+    dst = np.array([before[n] for n in shared])
+    sim, used = align_similarity(src, dst, robust=True, seed=seed)
+    rec.transform(pycolmap.Sim3d(sim.s, pycolmap.Rotation3d(sim.R), sim.t))
+    residual = np.linalg.norm(sim.apply(src[used]) - dst[used], axis=1)
+    return {"photos": int(used.sum()), "shared": len(shared), "scale": float(sim.s),
+            "rms": float(np.sqrt(np.mean(residual ** 2)))}
+
+
+def database_ids(database: Path) -> tuple[dict[str, int], dict[str, int]]:
+    """Image name -> image id, and image name -> camera id, in a COLMAP database."""
+    with read_only(database) as db:
+        rows = db.execute("SELECT name, image_id, camera_id FROM images").fetchall()
+    return {name: image for name, image, _ in rows}, {name: camera for name, _, camera in rows}

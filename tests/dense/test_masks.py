@@ -1,0 +1,75 @@
+"""Masks all the way (issue 14): a masked pixel never becomes a depth, a fused point, a mesh face or a
+texel. Quick checks of each piece here; the whole pipeline on the zoo's masked scene is the slow test."""
+
+from __future__ import annotations
+
+import numpy as np
+import pycolmap
+import trimesh
+
+from recon.imaging.masks import mask_at, resample_mask
+from recon.mvs.colmap_io import read_depth_map, write_map
+from recon.mvs.stereo import map_path, mask_maps
+from recon.mvs.views import ViewCamera
+from recon.surface.masking import drop_masked_faces, masked_faces
+
+
+def test_a_mask_follows_its_photo_into_the_undistorted_view():
+    distorted = pycolmap.Camera(model="SIMPLE_RADIAL", width=200, height=150, params=[180.0, 100.0, 75.0, -0.2])
+    pinhole = pycolmap.Camera(model="PINHOLE", width=160, height=120, params=[150.0, 150.0, 80.0, 60.0])
+    u, v = np.meshgrid(np.arange(200) + 0.5, np.arange(150) + 0.5)
+    rays = distorted.cam_from_img(np.stack([u.ravel(), v.ravel()], 1)).reshape(150, 200, 2)
+    mask = np.hypot(rays[..., 0] - 0.1, rays[..., 1]) < 0.25  # a disc of directions, seen through distortion
+    out = resample_mask(mask, distorted, pinhole)
+    u, v = np.meshgrid(np.arange(160) + 0.5, np.arange(120) + 0.5)
+    rays = pinhole.cam_from_img(np.stack([u.ravel(), v.ravel()], 1)).reshape(120, 160, 2)
+    expected = np.hypot(rays[..., 0] - 0.1, rays[..., 1]) < 0.25
+    assert np.mean(out != expected) < 0.01  # only pixels on the disc's edge may differ
+    assert out.sum() > 1000
+
+
+def test_masked_pixels_lose_their_depth_and_normal(tmp_path):
+    depth = np.full((60, 80), 2.0, np.float32)
+    normal = np.zeros((60, 80, 3), np.float32)
+    normal[..., 2] = -1
+    write_map(map_path(tmp_path, "depth", "a.jpg", "geometric"), depth)
+    write_map(map_path(tmp_path, "normal", "a.jpg", "geometric"), normal)
+    mask = np.zeros((120, 160), bool)  # the photo's mask, at twice the map's size
+    mask[:, :80] = True
+    cleared = mask_maps(tmp_path, "a.jpg", mask, "geometric")
+    after = read_depth_map(map_path(tmp_path, "depth", "a.jpg", "geometric"))
+    assert cleared == 60 * 40
+    assert np.all(after[:, :40] == 2.0) and np.all(after[:, 40:] == 0)
+    assert mask_maps(tmp_path, "a.jpg", mask, "geometric") == 0  # idempotent
+    assert mask_at(mask, 80, 60)[:, :40].all() and not mask_at(mask, 80, 60)[:, 40:].any()
+
+
+def _looking_down(height: float = 5.0, size: int = 200, focal: float = 200.0) -> ViewCamera:
+    """A camera above the origin looking down -z (x right, y down in the image)."""
+    R = np.diag([1.0, -1.0, -1.0])
+    return ViewCamera("top.jpg", np.array([[focal, 0, size / 2], [0, focal, size / 2], [0, 0, 1]]), R,
+                      -R @ np.array([0, 0, height]), size, size)
+
+
+def test_faces_over_masked_pixels_go_and_the_subject_stays():
+    """A 1 x 1 x 1 box (the subject) on a wide ground slab, seen from 5 above; the mask is the box's
+    silhouette. The ground around the box goes; the box stays, and so does ground no view sees."""
+    ground = trimesh.creation.box(extents=[8, 8, 0.1])
+    ground.apply_translation([0, 0, -0.05])
+    ground = ground.subdivide_to_size(0.25)
+    subject = trimesh.creation.box(extents=[1, 1, 1]).subdivide()
+    subject.apply_translation([0, 0, 0.5])
+    mesh = trimesh.util.concatenate([ground, subject])
+    view = _looking_down()
+    half = 200.0 * 0.5 / 4.0  # the box's top (half-width 0.5) at depth 4, focal 200: 25 px
+    mask = np.zeros((200, 200), bool)
+    mask[round(100 - half):round(100 + half), round(100 - half):round(100 + half)] = True
+    kept, dropped = drop_masked_faces(mesh, [view], {view.name: mask})
+    assert dropped > 0
+    assert not masked_faces(np.asarray(kept.vertices), np.asarray(kept.faces), [view], {view.name: mask}).any()
+    centres = kept.triangles_center
+    box_top = subject.triangles_center[np.isclose(subject.triangles_center[:, 2], 1.0)]
+    assert len(box_top) == np.isclose(centres[:, 2], 1.0).sum()  # the whole top of the box stays
+    in_view = np.isclose(centres[:, 2], 0.0) & (np.abs(centres[:, :2]).max(axis=1) < 2.4)
+    # ground left in view lies in the box's shadow (from 5 up, the top hides the ground to 0.625)
+    assert np.abs(centres[in_view, :2]).max() <= 0.7
