@@ -100,7 +100,8 @@ def print_sparse(rows: list[dict]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m recon.bench")
-    parser.add_argument("--only", choices=[SPARSE, "lowlight", "mvs", "dense", "wide", "scale", "quality"], default=None,
+    parser.add_argument("--only", choices=[SPARSE, "lowlight", "add_photos", "mvs", "dense", "wide", "scale", "quality"],
+                        default=None,
                         help="one section; without it every section but scale (300 views, ~30 min: make bench-scale) "
                              "and quality (the scene zoo, hours: make bench-quality)")
     parser.add_argument("--datasets", type=Path, default=recon.datasets_root())
@@ -118,6 +119,10 @@ def main(argv: list[str] | None = None) -> int:
         print_sparse(bench_sparse(args.datasets, args.out / SPARSE))
     if args.only in (None, "lowlight"):
         bench_lowlight(args.datasets, args.out / "lowlight")
+    if args.only in (None, "add_photos"):
+        from recon import add_photos_bench
+
+        add_photos_bench.main(["--datasets", str(args.datasets), "--out", str(args.out / "add_photos")])
     if args.only in (None, "mvs"):
         from recon.mvs import bench as mvs_bench
 

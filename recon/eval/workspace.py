@@ -79,7 +79,7 @@ def evaluate(workspace: Path, gt: Path) -> dict:
     scene_file = Path(gt) / "gt" / "scene.json"
     published = Published(ws)
     surfaces = [(key, path) for key, path in (("fused", published.fused), ("mesh", published.mesh)) if path.exists()]
-    reprojection = published.fused.exists() and published.depth_maps.is_dir()
+    reprojection = published.fused.exists() and published.depth_maps.is_dir() and not _wide_cameras(gt, scene_file)
     sim = _alignment(est, gt_cams, gt) if len(est) >= 3 and (reprojection or scene_file.exists() and surfaces) else None
     if scene_file.exists() and surfaces and sim is not None:
         import numpy as np
@@ -96,6 +96,13 @@ def evaluate(workspace: Path, gt: Path) -> dict:
     if reprojection and sim is not None:
         figures["fused_reprojection"] = _fused_reprojection(ws, gt_cams, sim)
     return figures
+
+
+def _wide_cameras(gt: Path, scene_file: Path) -> bool:
+    """A fisheye or 360 synthetic scene: the reprojection check projects through pinhole cameras."""
+    from recon.synth.wide import load_views
+
+    return scene_file.exists() and bool(load_views(gt))
 
 
 def _fused_reprojection(ws: Path, gt_cams: dict, to_gt, max_points: int = 200_000) -> dict:

@@ -27,14 +27,15 @@ def page_model(glb: bytes, max_faces: int, texture: int) -> bytes:
     welded = trimesh.Trimesh(full.vertices, full.faces, process=False)
     welded.merge_vertices()
     small = decimate(welded, max_faces)
-    image = getattr(full.visual, "material", None) and full.visual.material.baseColorTexture
+    source_material = getattr(full.visual, "material", None)
+    image = getattr(source_material, "baseColorTexture", None)
     if full.visual.kind != "texture" or image is None:  # nothing to bake: the geometry alone
         return small.export(file_type="glb")
     vertices, faces, uv, size = _charts(np.asarray(small.vertices), np.asarray(small.faces), texture)
     atlas = _bake(vertices, faces, uv, size, full, np.asarray(image.convert("RGB")))
-    picture = _jpeg(atlas)
-    material = trimesh.visual.material.PBRMaterial(baseColorTexture=picture, metallicFactor=0.0, roughnessFactor=1.0,
-                                                   doubleSided=bool(getattr(full.visual.material, "doubleSided", False)))
+    material = trimesh.visual.material.PBRMaterial(baseColorTexture=_jpeg(atlas), metallicFactor=0.0,
+                                                   roughnessFactor=1.0,
+                                                   doubleSided=bool(getattr(source_material, "doubleSided", False)))
     out = trimesh.Trimesh(vertices, faces, visual=trimesh.visual.TextureVisuals(uv=uv, material=material),
                           process=False)
     data = out.export(file_type="glb")
@@ -51,7 +52,7 @@ def _charts(vertices: np.ndarray, faces: np.ndarray, texture: int):
     atlas = xatlas.Atlas()
     atlas.add_mesh(np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(faces, np.uint32))
     charts = xatlas.ChartOptions()
-    charts.max_iterations = 0  # charts grown once: 2.5x faster on 30,000 faces, 8 % less of the atlas used
+    charts.max_iterations = 0  # grown once: on 30,000 faces 6.4 s, not 16.6 s; 67 % of the atlas used, not 72 %
     pack = xatlas.PackOptions()
     pack.resolution = texture
     pack.padding = 2

@@ -14,7 +14,6 @@ import sys
 import time
 
 import pytest
-
 from reliability_checks import SPARSE, assert_same_reconstruction, cli, complete_outputs, partial_outputs
 
 from recon.workspace import read_json

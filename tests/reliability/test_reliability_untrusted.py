@@ -10,9 +10,8 @@ import re
 import shutil
 from pathlib import Path
 
-from reliability_checks import SPARSE, cli, complete_outputs, database_rows
-
 import pycolmap
+from reliability_checks import SPARSE, cli, complete_outputs, database_rows
 
 from recon.sparse.database import opened
 from recon.sparse.matcher import write_block

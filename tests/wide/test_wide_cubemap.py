@@ -20,11 +20,11 @@ def workspace(tmp_path_factory):
     """A model of three rendered panoramas at their true poses with 300 true surface points, and its
     cube-map workspace."""
     root = tmp_path_factory.mktemp("cube")
-    scene = render_room_walk(root / "room", views=3, width=384, height=192)
+    scene = render_room_walk(root / "room", views=3, width=320, height=160)
     views = load_views(scene.root)
     rec = pycolmap.Reconstruction()
-    rec.add_camera_with_trivial_rig(pycolmap.Camera(model="EQUIRECTANGULAR", width=384, height=192,
-                                                    params=[384.0, 192.0], camera_id=1))
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(model="EQUIRECTANGULAR", width=320, height=160,
+                                                    params=[320.0, 160.0], camera_id=1))
     first = scene.image_names[0]
     pts = range_points(np.load(scene.depth_dir / "pano_000.npy"), views[first])
     pts = pts[np.random.default_rng(0).choice(len(pts), 300, replace=False)]
@@ -49,7 +49,7 @@ def workspace(tmp_path_factory):
 
 def test_faces_are_the_pinhole_views_at_the_panoramas_poses(workspace):
     scene, views, dense, summary = workspace
-    assert summary == {"images": 18, "panoramas": 3, "size": "122x122"}  # 384 / pi
+    assert summary == {"images": 18, "panoramas": 3, "size": "102x102"}  # 320 / pi
     faces = pycolmap.Reconstruction(str(dense / "sparse"))
     renderer = Renderer(build_room(0))
     errors = []
@@ -64,7 +64,7 @@ def test_faces_are_the_pinhole_views_at_the_panoramas_poses(workspace):
                                                  np.asarray(pose.translation), cam.width, cam.height))
             got = np.asarray(Image.open(dense / "images" / face_name(name, face)), dtype=float)
             errors.append(np.abs(got - truth).mean())
-    # resampled from a 384-pixel panorama and JPEG'd twice: a few levels; a face turned the wrong way
+    # resampled from a 320-pixel panorama and JPEG'd twice: a few levels; a face turned the wrong way
     # or shifted by a pixel differs by tens
     assert max(errors) < 8.0, errors
 

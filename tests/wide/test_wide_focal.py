@@ -11,7 +11,7 @@ from recon.sparse.fisheye_focal import estimate_focal
 from recon.synth.wide import fisheye_params, render_fisheye_orbit
 
 
-@pytest.mark.parametrize("fov", [176.0, 140.0])
+@pytest.mark.parametrize("fov", [176.0, pytest.param(140.0, marks=pytest.mark.slow)])
 def test_focal_found_within_three_percent(tmp_path, fov):
     scene = render_fisheye_orbit(tmp_path / "fisheye", views=10, width=320, height=240, diagonal_fov_deg=fov)
     settings = FeaturesConfig().settings()
