@@ -13,7 +13,7 @@ from typing import Any
 
 from recon import pipeline
 from recon.config import ConfigError
-from recon.files import read_json, write_json
+from recon.files import read_json
 from recon.workspace import CACHE_DIR, Workspace, WorkspaceError
 
 log = logging.getLogger("recon")
@@ -54,8 +54,6 @@ def run(config: str | Path | dict | None = None, *, images: str | None = None, w
     from recon.logs import quiet_colmap
 
     quiet_colmap(ws.meta / "logs" / "colmap.")
-    # written first, so that `recon status WS` can say where a killed run stopped
-    write_json(ws.meta / "config.json", {"base": str(cfg.base), "config": cfg.as_dict()})
     return pipeline.run(cfg, from_stage=from_stage, until=until, force=force, verify=verify)
 
 
@@ -70,13 +68,14 @@ def _config_for(target: str | Path | dict, overrides=None, images=None, workspac
         return load(target, overrides, images=images, workspace=workspace)
     path = Path(target)
     if path.is_dir():
-        snapshot = read_json(path / CACHE_DIR / "config.json")
-        if snapshot is None:
-            raise WorkspaceError(f"{path}: not a recon workspace (no {CACHE_DIR}/config.json); pass the config file")
-        data = snapshot["config"]
+        saved = Workspace(path).saved_config()
+        if saved is None:
+            raise WorkspaceError(f"{path}: not a recon workspace (no run recorded in {CACHE_DIR}/); pass the "
+                                 "config file")
+        base, data = saved
         data["workspace"] = str(path.absolute())
         cfg = load(data, overrides, images=images)
-        return pipeline.RunConfig(cfg.run, cfg.stages, Path(snapshot["base"]))
+        return pipeline.RunConfig(cfg.run, cfg.stages, Path(base))
     return load(path, overrides, images=images, workspace=workspace)
 
 
@@ -88,7 +87,7 @@ def status(target: str | Path | dict, overrides=None, images=None, workspace=Non
 def clean(target: str | Path, everything: bool = False, workspace: str | None = None) -> tuple[int, int]:
     path = Path(target)
     if path.is_dir():
-        cfg = _config_for(path) if (path / CACHE_DIR / "config.json").exists() else None
+        cfg = _config_for(path) if Workspace(path).saved_config() is not None else None
         return pipeline.clean(cfg, path, everything)
     cfg = _config_for(path, workspace=workspace)
     return pipeline.clean(cfg, cfg.workspace, everything)

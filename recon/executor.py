@@ -78,17 +78,20 @@ class Executor:
         return self._client.get_executor(pure=False)
 
     def shutdown(self, abandon: bool = False) -> None:
-        """Stop the workers. ``abandon``: the run is stopping (Ctrl-C, SIGTERM, an error), so local
-        workers are killed rather than waited for: a PatchMatch view can take minutes, and every item
-        is written atomically, so the ones in flight are simply redone by the next run."""
+        """Stop the workers. ``abandon``: the run is stopping (Ctrl-C, SIGTERM, an error), so the items
+        in flight are not waited for: a PatchMatch view can take minutes (seen: a SIGTERM'd run that
+        held its workspace for ten more minutes), and every item is written atomically, so they are
+        simply redone by the next run. Local workers are killed; the pool then fails the futures it
+        still holds (nothing reads them), so none may be cancelled before (Python 3.11 raises on
+        failing a cancelled future)."""
         if self._pool is not None:
             if isinstance(self._pool, cf.ProcessPoolExecutor):
-                if abandon:
-                    for process in list((self._pool._processes or {}).values()):  # no public way to stop them
-                        process.kill()
-                self._pool.shutdown(wait=not abandon, cancel_futures=True)
-            else:  # Dask's executor (its shutdown has no cancel_futures)
-                self._pool.shutdown(wait=True)
+                workers = list((self._pool._processes or {}).values()) if abandon else []  # no public handle
+                self._pool.shutdown(wait=not abandon, cancel_futures=not abandon)
+                for worker in workers:
+                    worker.kill()
+            else:  # Dask's executor: shutdown(wait=False) cancels what is not done
+                self._pool.shutdown(wait=not abandon)
             self._pool = None
         if self._client is not None:
             self._client.close()

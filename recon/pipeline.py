@@ -27,7 +27,7 @@ from typing import Any
 from recon import stages as _stages  # noqa: F401  (registers every stage)
 from recon.config import ConfigError, RunOptions, apply_overrides, build, read_yaml, to_dict
 from recon.executor import Executor, check_spec
-from recon.logs import native_stderr_to
+from recon.logs import file_handler, native_stderr_to
 from recon.options import output_options
 from recon.stage import REGISTRY, Stage, StageContext, StageError, resolve_path
 from recon.workspace import HashCache, Workspace, WorkspaceError
@@ -174,6 +174,7 @@ def run(cfg: RunConfig, *, from_stage: str | None = None, until: str | None = No
             raise ConfigError(f"--from {from_stage}: stage is not part of this run ({', '.join(order)})")
         keep = _check_clashes(cfg, ws, order)
         p = plan(cfg, ws)
+        ws.save_config(str(cfg.base), cfg.as_dict())  # before any stage: a killed run can be shown by status
         before = set(order[: order.index(from_stage)]) if from_stage else set()
         forced: set[str] = set()
         for name in force:
@@ -329,7 +330,7 @@ def _setup_log_file(ws: Workspace) -> None:
     for handler in [h for h in root.handlers if isinstance(h, logging.FileHandler)]:
         root.removeHandler(handler)
         handler.close()
-    handler = logging.FileHandler(path)
+    handler = file_handler(path)
     handler.setLevel(logging.DEBUG)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root.addHandler(handler)

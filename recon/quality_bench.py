@@ -63,10 +63,12 @@ def holdout_texture(ws: Path, scene) -> dict:
     from PIL import Image
 
     from recon.eval.texture import masked_psnr, render
+    from recon.surface.export import Z_UP_TO_GLTF
 
     sim = recon.api.model_to_ground_truth(ws, scene.root)
-    meshes = {"texture": trimesh.load(ws / "textured.glb", force="mesh"),
-              "vertex_colours": trimesh.load(ws / "mesh.ply", process=False)}
+    textured = trimesh.load(ws / "textured.glb", force="mesh")
+    textured.apply_transform(np.linalg.inv(Z_UP_TO_GLTF))  # glTF is Y up; the model's frame Z up
+    meshes = {"texture": textured, "vertex_colours": trimesh.load(ws / "mesh.ply", process=False)}
     for mesh in meshes.values():
         mesh.vertices = sim.apply(np.asarray(mesh.vertices))
     psnr: dict[str, list[float]] = {k: [] for k in meshes}

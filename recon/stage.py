@@ -177,10 +177,8 @@ class StageContext:
             for future in _as_completed(futures):
                 results[futures[future]] = future.result()
                 progress.advance(size(items[futures[future]]))
-        except BaseException:
+        except BaseException:  # the pipeline stops the executor (Executor.shutdown(abandon=True))
             progress.close()
-            for future in futures:
-                future.cancel()
             raise
         return results
 

@@ -150,6 +150,16 @@ class Workspace:
         return final
 
     # -- state ------------------------------------------------------------------------------
+    def save_config(self, base: str, config: dict) -> None:
+        """The run's resolved config (and the folder its relative paths are from), which `recon status
+        WS` and `recon clean WS` read back; written once the run's inputs are known to be there."""
+        write_json(self.meta / "config.json", {"base": base, "config": config})
+
+    def saved_config(self) -> tuple[str, dict] | None:
+        """(base, config) of the last run that started, or None."""
+        data = read_json(self.meta / "config.json")
+        return (data["base"], data["config"]) if data else None
+
     def state(self) -> dict[str, str]:
         return read_json(self.meta / "state.json") or {}
 

@@ -88,7 +88,7 @@ def _faces_over_masked_truth(scene, workspace) -> tuple[int, object]:
     sees on a pixel its true mask excludes, 2 px or more from the subject (alignment error aside)."""
     import cv2
 
-    import recon
+    import recon.api
     from recon.eval.groundtruth import load_cameras
     from recon.imaging.masks import load_mask
     from recon.surface.raycast import render_ids, scene_of
@@ -119,7 +119,7 @@ def test_the_masked_scene_gives_a_mesh_of_the_object_alone(tmp_path):
     import subprocess
     import sys
 
-    import recon
+    import recon.api
     from recon.eval.surface import object_metrics
 
     scene = tmp_path / "scene"

@@ -17,7 +17,7 @@ from recon.files import read_json
 from recon.imaging.calibration import Chessboard, render_board_views
 from recon.imaging.intrinsics import Intrinsics
 from recon.imaging.undistort import undistorted_camera
-from recon.sparse.database import opened
+from recon.sparse.database import opened, private_copy
 from recon.synth import scene_cameras
 from recon.synth.render import Renderer
 from recon.synth.scene import build_scene
@@ -84,7 +84,7 @@ def test_calibration_reaches_the_database_scaled_to_the_photos(boards, small_sce
     assert len(cam) == 1 and cam[0]["fixed"] == (use == "fixed") and cam[0]["prior_focal"]
     assert (cam[0]["model"], cam[0]["width"], cam[0]["height"]) == ("OPENCV", 320, 240)
     assert cam[0]["params"] == pytest.approx(list(expected.params))
-    with opened(output(ws, "features") / "database.db") as db:
+    with private_copy(output(ws, "features") / "database.db") as copy, opened(copy) as db:
         (camera,) = db.read_all_cameras()
     assert camera.model.name == "OPENCV" and camera.has_prior_focal_length
     assert list(camera.params) == pytest.approx(list(expected.params))

@@ -64,6 +64,8 @@ def catalogue(tmp: Path, scene: Path, workspace: Path, photo: np.ndarray) -> lis
     one = folder("one photo")
     Image.fromarray(photo).save(one / "a.jpg")
     (tmp / "a file").write_text("not a folder")
+    colmap_project = folder("colmap project")  # a user's COLMAP database where recon's would go
+    (colmap_project / "database.db").write_bytes(b"the user's database")
     images = scene / "images"
     run = ["run", str(SPARSE), "--images", str(images), "--workspace"]
     ws = str(tmp / "fresh ws")  # (tmp / "ws" is copy_workspace)
@@ -93,6 +95,7 @@ def catalogue(tmp: Path, scene: Path, workspace: Path, photo: np.ndarray) -> lis
         ([*run, ws, "-o", f"calibrate.images={tmp / 'absent'}"], "calibrate.images:"),
         ([*run, ws, "-o", f"preprocess.mask_dir={tmp / 'absent'}"], "preprocess.mask_dir:"),
         ([*run, str(tmp / "a file" / "ws")], "cannot create the workspace (Not a directory)"),
+        ([*run, str(colmap_project)], f"{colmap_project / 'database.db'} exists and recon did not make it"),
         ([*run, ws, "--from", "sfm"], "--from sfm: stage 'ingest' before it has no complete output"),
         ([*run, ws, "--until", "mesher"], "unknown stage 'mesher'"),
         (["run", str(SPARSE)], "workspace: no workspace given"),

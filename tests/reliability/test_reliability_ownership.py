@@ -201,3 +201,15 @@ def test_home_and_variables_in_config_paths_are_expanded(small_scene, tmp_path, 
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (tmp_path / "out" / "ws" / "images").is_symlink()
     assert not (tmp_path / "~").exists() and not (tmp_path / "$RECON_TEST_OUT").exists()
+
+
+def test_a_corrupted_model_file_is_caught_even_with_its_size_and_mtime(copy_workspace):
+    keys = json.loads((copy_workspace / ".recon" / "state.json").read_text())
+    images_bin = copy_workspace / ".recon" / "cache" / "sfm" / keys["sfm"][:16] / "sparse" / "0" / "images.bin"
+    st = images_bin.stat()
+    data = bytearray(images_bin.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    images_bin.write_bytes(bytes(data))
+    os.utime(images_bin, ns=(st.st_atime_ns, st.st_mtime_ns))
+    rows = {line.split()[0]: line for line in cli("status", copy_workspace).stdout.splitlines()}
+    assert "stale" in rows["sfm"] and "sparse/0/images.bin changed since it was written (content)" in rows["sfm"]

@@ -8,6 +8,7 @@ import numpy as np
 import pycolmap
 
 import recon
+from recon.sparse.database import opened, private_copy
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -27,12 +28,9 @@ def test_dask_local_cluster_gives_the_same_sparse_model(small_scene, sparse_work
     spread = np.linalg.norm(cb - cb.mean(0), axis=1).mean()
     assert np.abs(ca - cb).max() <= 1e-6 * spread
     # the features themselves are identical whichever executor computed them
-    da = pycolmap.Database.open(str(ws / "database.db"))
-    db = pycolmap.Database.open(str(sparse_workspace / "database.db"))
-    try:
+    # through copies: pycolmap writes to a database it opens, and these are cached outputs
+    with private_copy(ws / "database.db") as a, private_copy(sparse_workspace / "database.db") as b, \
+            opened(a) as da, opened(b) as db:
         for img in da.read_all_images():
             other = db.read_image_with_name(img.name)
             assert np.array_equal(da.read_descriptors(img.image_id).data, db.read_descriptors(other.image_id).data)
-    finally:
-        da.close()
-        db.close()

@@ -10,17 +10,16 @@ import trimesh
 
 from recon.eval.groundtruth import load_cameras
 from recon.eval.poses import pose_metrics
+from recon.sparse.database import opened, private_copy
 
 
 def test_workspace_contract(sparse_workspace):
     for rel in ("database.db", "sparse/0/cameras.bin", "sparse/0/images.bin", "sparse/0/points3D.bin",
                 "sparse_text/cameras.txt", "points.ply", "transforms.json", "images"):
         assert (sparse_workspace / rel).exists(), rel
-    db = pycolmap.Database.open(str(sparse_workspace / "database.db"))
-    try:
+    # pycolmap writes to a database it opens: read the session's cached one through a copy
+    with private_copy(sparse_workspace / "database.db") as copy, opened(copy) as db:
         assert db.num_images() == 16 and db.num_verified_image_pairs() > 0
-    finally:
-        db.close()
 
 
 def test_model_loads_and_matches_ground_truth(sparse_workspace, small_scene):
