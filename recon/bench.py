@@ -158,6 +158,7 @@ def bench_dense(out: Path) -> None:
     import trimesh
 
     from recon.eval.texture import masked_psnr, render
+    from recon.surface.export import read_glb
     from recon.synth import load_scene, render_scene
 
     scene_dir = out / "scene"
@@ -169,7 +170,7 @@ def bench_dense(out: Path) -> None:
     result = recon.run(REPO / "pipelines" / "full.yaml", images=str(scene_dir / "images"), workspace=str(ws))
     figures = recon.api.evaluate(ws, scene_dir)
     sim = recon.api.model_to_ground_truth(ws, scene_dir)
-    textured = trimesh.load(ws / "textured.glb", force="mesh")
+    textured = read_glb(ws / "textured.glb")  # in the model's frame (the file is glTF's Y up)
     colored = trimesh.load(ws / "mesh.ply", process=False)
     psnr = {"texture": [], "vertex colours": []}
     for name, cam in scene.cameras(holdout=True).items():

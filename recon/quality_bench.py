@@ -63,11 +63,10 @@ def holdout_texture(ws: Path, scene) -> dict:
     from PIL import Image
 
     from recon.eval.texture import masked_psnr, render
-    from recon.surface.export import Z_UP_TO_GLTF
+    from recon.surface.export import read_glb
 
     sim = recon.api.model_to_ground_truth(ws, scene.root)
-    textured = trimesh.load(ws / "textured.glb", force="mesh")
-    textured.apply_transform(np.linalg.inv(Z_UP_TO_GLTF))  # glTF is Y up; the model's frame Z up
+    textured = read_glb(ws / "textured.glb")
     meshes = {"texture": textured, "vertex_colours": trimesh.load(ws / "mesh.ply", process=False)}
     for mesh in meshes.values():
         mesh.vertices = sim.apply(np.asarray(mesh.vertices))

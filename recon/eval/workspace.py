@@ -51,16 +51,34 @@ def model_to_ground_truth(workspace: Path, gt: Path):
 
 
 def _alignment(est: dict, gt_cams: dict, gt: str | Path):
-    import numpy as np
-
-    from recon.geometry.transforms import align_similarity, camera_center
-
     if len(est) < 3:
         raise EvaluationError(f"{gt}: fewer than 3 images of the model have a ground-truth camera")
     names = sorted(est)
-    src = np.array([camera_center(*est[n]) for n in names])
-    dst = np.array([gt_cams[n].center for n in names])
-    return align_similarity(src, dst, robust=True)[0]
+    return align_cameras([est[n] for n in names], [(gt_cams[n].R, gt_cams[n].t) for n in names])
+
+
+def align_cameras(est: list, truth: list):
+    """The similarity taking the estimated cameras' world to the true one, from (R, t) world-to-camera
+    pairs: a robust fit on the camera centres picks the cameras that agree, then one fit on those
+    centres and, one camera spread away from each, its viewing and image-down axes. Centres alone
+    leave the rotation about their line to noise when the cameras stand in a line (a facade or
+    street walk: mesh accuracy 4.5 % at 0.2 % of the extent on poses with AUC@5 93)."""
+    import numpy as np
+
+    from recon.geometry.transforms import align_similarity, camera_center, umeyama
+
+    src = np.array([camera_center(R, t) for R, t in est])
+    dst = np.array([camera_center(R, t) for R, t in truth])
+    _, used = align_similarity(src, dst, robust=True)
+
+    def with_axes(centres: np.ndarray, rotations: list) -> np.ndarray:
+        reach = max(float(np.linalg.norm(centres - centres.mean(0), axis=1).mean()), 1e-12)
+        axes = [np.asarray(R)[[2, 1]] for R in rotations]  # rows of R: the camera's z and y in the world
+        return np.concatenate([centres, *[centres + reach * np.array([a[i] for a in axes]) for i in (0, 1)]])
+
+    pick = np.flatnonzero(used)
+    return umeyama(with_axes(src[pick], [est[i][0] for i in pick]),
+                   with_axes(dst[pick], [truth[i][0] for i in pick]))
 
 
 def evaluate(workspace: Path, gt: Path) -> dict:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
+from recon.files import atomic
 from recon.options import opt
 from recon.products import DenseScene, DepthMaps, FusedCloud
 from recon.stage import Stage, StageContext, StageError, register
@@ -48,15 +50,25 @@ class Fusion(Stage):
         opts.max_depth_error = cfg.max_depth_error
         opts.max_normal_error = cfg.max_normal_error
         opts.num_threads = 1 if cfg.deterministic else -1
-        tmp = ctx.out / ".fused.ply"
-        rec = pycolmap.stereo_fusion(str(tmp), str(scratch), options=opts, output_type="PLY")
-        if rec.num_points3D() == 0 and not tmp.exists():
-            raise StageError("fusion: no point was seen consistently by enough views; lower "
-                             "fusion.min_num_pixels or check the mvs depth maps")
-        tmp.replace(ctx.out / "fused.ply")
-        import trimesh
-
-        points = len(trimesh.load(ctx.out / "fused.ply").vertices)
-        if points == 0:
-            raise StageError("fusion: the fused cloud is empty; lower fusion.min_num_pixels or check the depth maps")
+        with atomic(ctx.output.path) as tmp:
+            pycolmap.stereo_fusion(str(tmp), str(scratch), options=opts, output_type="PLY")
+            points = _vertex_count(tmp)
+            if points == 0:  # (trimesh reads an empty PLY as an empty scene, with no vertices)
+                raise StageError("fusion: no point was seen consistently by enough views (too few registered "
+                                 "photos, or depth maps mostly empty); lower fusion.min_num_pixels or check the "
+                                 "mvs depth maps")
         return {"points": points}
+
+
+def _vertex_count(ply: Path) -> int:
+    """The vertex count a PLY file's header declares (0 for a missing or empty file)."""
+    try:
+        with open(ply, "rb") as f:
+            for line in f:
+                if line.startswith(b"element vertex"):
+                    return int(line.split()[2])
+                if line.strip() == b"end_header":
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0

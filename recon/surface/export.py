@@ -33,6 +33,13 @@ def write_glb(textured: TexturedMesh, path: str | Path) -> Path:
     return path
 
 
+def read_glb(path: str | Path) -> trimesh.Trimesh:
+    """A GLB written by :func:`write_glb` as a mesh in recon's frame (Z up), texture included."""
+    mesh = trimesh.load(path, force="mesh")
+    mesh.apply_transform(np.linalg.inv(Z_UP_TO_GLTF))
+    return mesh
+
+
 def write_obj(textured: TexturedMesh, path: str | Path) -> Path:
     """``<name>.obj`` with ``<name>.mtl`` and the atlas as ``<name>.png`` beside it; returns the OBJ's path."""
     path = Path(path)

@@ -141,3 +141,24 @@ def test_single_image_has_no_pairs():
     cam = Camera(np.eye(3), np.eye(3), np.zeros(3), 10, 10)
     m = pose_metrics({"a": (np.eye(3), np.zeros(3))}, {"a": cam})
     assert m["pairs"] == 0 and m["registered"] == 1 and np.isnan(m["auc@5"])
+
+
+def test_cameras_in_a_line_are_aligned_about_their_line_too():
+    """A walk: camera centres on one line say nothing about the rotation about it; the cameras'
+    axes do (align_cameras), so the recovered similarity maps the model's surface where it belongs."""
+    from recon.eval.workspace import align_cameras
+    from recon.geometry.transforms import qvec_to_rotmat
+
+    rng = np.random.default_rng(3)
+    look = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])  # camera x = world x, looking along world +y
+    truth = [(look, -look @ np.array([k, 0.0, 1.5])) for k in range(10)]
+    rot = qvec_to_rotmat(np.array([0.9, 0.3, -0.2, 0.25]) / np.linalg.norm([0.9, 0.3, -0.2, 0.25]))
+    scale, shift = 0.5, np.array([3.0, -1.0, 2.0])
+    est = []  # the same cameras in another frame: X_est = scale * rot @ X_true + shift
+    for R, t in truth:
+        centre = -R.T @ t
+        R_est = R @ rot.T
+        est.append((R_est, -R_est @ (scale * rot @ centre + shift + rng.normal(0, 1e-4, 3))))
+    sim = align_cameras(est, truth)
+    point = np.array([[4.0, 6.0, 0.0]])  # on the facade the walk faces, off the cameras' line
+    assert np.linalg.norm(sim.apply(scale * point @ rot.T + shift) - point) < 1e-2

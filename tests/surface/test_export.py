@@ -3,7 +3,7 @@ import pytest
 import trimesh
 
 from recon.eval.texture import render
-from recon.surface.export import Z_UP_TO_GLTF, write_glb, write_obj, write_ply
+from recon.surface.export import read_glb, write_glb, write_obj, write_ply
 from recon.surface.texture import texture_mesh
 
 
@@ -28,10 +28,9 @@ def _half_size(cam):
 
 def test_glb_round_trip(tmp_path, textured, small_scene):
     path = write_glb(textured, tmp_path / "textured.glb")
-    loaded = trimesh.load(path, force="mesh")
     z = textured.vertices[:, 2]
-    assert np.allclose(loaded.bounds[:, 1], [z.min(), z.max()])  # glTF's Y is recon's Z
-    loaded.apply_transform(np.linalg.inv(Z_UP_TO_GLTF))  # glTF's Y up back to recon's Z up
+    assert np.allclose(trimesh.load(path, force="mesh").bounds[:, 1], [z.min(), z.max()])  # glTF's Y is recon's Z
+    loaded = read_glb(path)  # back in recon's frame
     image = loaded.visual.material.baseColorTexture
     assert image.size == (textured.texture.shape[1], textured.texture.shape[0])
     assert np.array_equal(np.asarray(image.convert("RGB")), textured.texture)
