@@ -24,6 +24,7 @@ from pathlib import Path
 import recon
 from recon.eval.groundtruth import load_cameras
 from recon.eval.poses import pose_metrics
+from recon.products import Published, SparseModel
 from recon.synth import load_scene
 from recon.synth.wide import fisheye_params, render_fisheye_orbit, render_room_walk
 
@@ -55,7 +56,7 @@ def colmap_run(images: Path, out: Path, model: str, params: list[float] | None =
     pycolmap.extract_features(str(out / "database.db"), str(images), camera_mode=pycolmap.CameraMode.SINGLE,
                               reader_options=reader)
     pycolmap.match_exhaustive(str(out / "database.db"))
-    models = pycolmap.incremental_mapping(str(out / "database.db"), str(images), str(out / "sparse"))
+    models = pycolmap.incremental_mapping(str(out / "database.db"), str(images), str(out / SparseModel.MODELS))
     best = max(models.values(), key=lambda r: r.num_reg_images()) if models else None
     return time.perf_counter() - start, best
 
@@ -67,7 +68,7 @@ def recon_run(images: Path, ws: Path, model: str) -> tuple[float, object]:
     start = time.perf_counter()
     recon.run(REPO / "pipelines" / "sparse.yaml", images=str(images), workspace=str(ws),
               overrides={"ingest.camera_model": model})
-    return time.perf_counter() - start, pycolmap.Reconstruction(str(ws / "sparse" / "0"))
+    return time.perf_counter() - start, pycolmap.Reconstruction(str(Published(ws).model()))
 
 
 def _poses(rec) -> dict:

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.products import SparseModel
+
 #: face name -> rotation face-from-panorama (rows: the face's right, down and forward axes in the
 #: panorama camera's frame: x right, y down, z forward)
 FACES = {
@@ -97,8 +99,8 @@ def write_cubemap_workspace(model: Path, images: Path, out: Path, max_size: int 
         new_id = faces.add_point3D(point.xyz, pycolmap.Track(), point.color)
         for image_id, k in elements:
             faces.add_observation(new_id, pycolmap.TrackElement(image_id, k))
-    (out / "sparse").mkdir(parents=True, exist_ok=True)
-    faces.write(str(out / "sparse"))
+    (out / SparseModel.MODELS).mkdir(parents=True, exist_ok=True)
+    faces.write(str(out / SparseModel.MODELS))
     (out / "stereo").mkdir(parents=True, exist_ok=True)
     (out / "stereo" / "patch-match.cfg").write_text("".join(f"{n}\n__auto__, 20\n" for n in names))
     (out / "stereo" / "fusion.cfg").write_text("".join(f"{n}\n" for n in names))

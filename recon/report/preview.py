@@ -68,12 +68,11 @@ def _bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, size: tuple[i
     """The atlas (H, W, 3 uint8) of the charted copy: each texel takes the source's colour at the point of
     the source surface nearest to the texel's point; texels outside every chart take the nearest
     chart texel's colour (no dark seams under bilinear or mip-mapped lookups)."""
-    import cv2
     from scipy import ndimage
 
     from recon._open3d import open3d
     from recon.surface.raycast import scene_of
-    from recon.surface.texture.raster import rasterize
+    from recon.surface.texture.raster import rasterize, sample_bilinear
 
     width, height = size
     corners = uv[faces] * [width, -height] + [0, height]  # texel coordinates, y down
@@ -91,9 +90,10 @@ def _bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, size: tuple[i
     weights = np.column_stack([1.0 - b.sum(axis=1), b])
     src_uv = np.einsum("nk,nkd->nd", weights, np.asarray(source.visual.uv, np.float64)[src_faces[face]])
     h, w = source_image.shape[:2]
-    at = np.zeros((height, width, 2), np.float32)  # where each texel looks in the source texture
-    at[filled] = np.column_stack([src_uv[:, 0] * w, (1.0 - src_uv[:, 1]) * h]) - 0.5  # OpenCV: centres at integers
-    atlas = cv2.remap(source_image, at, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    at = np.zeros((height, width, 2), np.float64)  # where each texel looks in the source texture
+    at[filled] = np.column_stack([src_uv[:, 0] * w, (1.0 - src_uv[:, 1]) * h])
+    # not cv2.remap: it refuses sources over 32767 px a side, which a large atlas can be
+    atlas = np.round(sample_bilinear(source_image, at[..., 0], at[..., 1])).astype(source_image.dtype)
     if filled.any() and not filled.all():
         near = ndimage.distance_transform_edt(~filled, return_distances=False, return_indices=True)
         atlas = atlas[near[0], near[1]]

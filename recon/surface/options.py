@@ -15,6 +15,8 @@ class MeshOptions:
     method: Literal["poisson", "tsdf"] = opt("poisson", "poisson: screened Poisson on oriented fused points; tsdf: fuse depth maps")
     depth: int = opt(9, "Poisson octree depth (resolution = points' extent / 2^depth)", ge=5, le=13)
     point_weight: float = opt(4.0, "Poisson screening weight: higher follows the points more closely", ge=0.0)
+    deterministic: bool = opt(True, "single-threaded Poisson: the same mesh from the same points (multi-threaded, "
+                                    "its densities differ in the last digits, so trimming cuts other faces)")
     density_quantile: float = opt(0.05, "drop Poisson vertices whose point density is below this quantile", ge=0.0, lt=1.0)
     bbox_margin: float = opt(0.02, "trim Poisson faces outside the points' box grown by this fraction of its size", ge=0.0)
     trim_distance: float = opt(4.0, "drop faces farther than this many Poisson cells from any input point (0: off)", ge=0.0)

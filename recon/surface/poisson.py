@@ -30,7 +30,8 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | N
     pcd.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64))
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
-            pcd, depth=options.depth, point_weight=options.point_weight)
+            pcd, depth=options.depth, point_weight=options.point_weight,
+            n_threads=1 if options.deterministic else -1)
     vertices = np.asarray(mesh.vertices)
     faces = np.asarray(mesh.triangles)
     density = np.asarray(density)

@@ -146,25 +146,14 @@ def test_mesh_is_reproducible(dense_workspace, small_scene, tmp_path):
     """The same config and seed give the same mesh (issue 7): re-running the mesh stage rewrites it identically."""
     import shutil
 
-    import trimesh
-
     ws = tmp_path / "ws"
     shutil.copytree(dense_workspace, ws, symlinks=True)
     first = next(ws.glob(".recon/cache/mesh/*/mesh.ply")).read_bytes()
     done = run_cli(ws, small_scene, flags=("--force", "mesh", "--until", "mesh"))
     assert done.returncode == 0, done.stderr
     second = next(ws.glob(".recon/cache/mesh/*/mesh.ply")).read_bytes()
-    a, b = trimesh.load(trimesh.util.wrap_as_stream(first), file_type="ply"), \
-        trimesh.load(trimesh.util.wrap_as_stream(second), file_type="ply")
-    # open3d's Poisson and quadric decimation are multi-threaded: a few faces of a re-run may be cut
-    # differently, so the documented tolerance is geometric: same size, every vertex of one mesh within
-    # 1e-4 of the extent of the other's surface
-    from scipy.spatial import cKDTree
-
-    assert abs(len(a.faces) - len(b.faces)) <= len(a.faces) // 1000
-    extent = float(np.linalg.norm(a.bounds[1] - a.bounds[0]))
-    gaps = np.r_[cKDTree(b.vertices).query(a.vertices)[0], cKDTree(a.vertices).query(b.vertices)[0]]
-    assert np.quantile(gaps, 0.99) < 1e-4 * extent and gaps.max() < 1e-2 * extent
+    assert first == second  # mesh.deterministic: single-threaded Poisson (multi-threaded, 1 % of the
+    # vertices moved by up to 5e-4 of the extent between two runs, as its densities changed the trimming)
 
 
 def test_fusion_is_reproducible(dense_workspace, small_scene, tmp_path):
