@@ -94,7 +94,7 @@ class Ingest(Stage):
             extract_keyframes(video, folder, cfg.keyframes)
         else:
             folder = _images_folder(ctx)
-        listing = _listing(ctx, folder)
+        listing = _listing(ctx, folder) if video is None else list_photos(folder)  # keyframes: recon's own
         photos, others = listing.photos, listing.others
         for path, why in listing.unreadable:
             ctx.log.warning("skipped: %s: %s", path, why)

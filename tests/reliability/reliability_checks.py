@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import filecmp
 import shutil
+import signal
 import sqlite3
 import subprocess
 import sys
@@ -22,6 +23,12 @@ SPARSE_STAGES = ["ingest", "calibrate", "preprocess", "features", "matching", "s
 #: the user-facing files of a sparse run that must be identical byte for byte on a re-run
 MODEL_FILES = ["sparse/0/cameras.bin", "sparse/0/images.bin", "sparse/0/points3D.bin", "sparse_text/cameras.txt",
                "sparse_text/images.txt", "sparse_text/points3D.txt", "points.ply", "transforms.json"]
+
+
+def ctrl_c_reaches_it() -> None:
+    """A shell that runs CI in the background ignores SIGINT in its children (POSIX), and Python then
+    installs no KeyboardInterrupt handler: give the child a terminal's default, as a user's shell does."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def cli(*args: str, timeout: float = 300, **kwargs) -> subprocess.CompletedProcess:

@@ -20,6 +20,7 @@ from reliability_checks import (
     cache_dir,
     cli,
     complete_outputs,
+    ctrl_c_reaches_it,
     partial_outputs,
 )
 
@@ -40,7 +41,7 @@ def interrupted_run(stage: str, signal_name: str, args: list[str]) -> subprocess
     """recon run with ``signal_name`` sent inside ``stage`` (see interrupt.py); its own session, so
     that a SIGINT to its process group reaches recon and its workers but not pytest."""
     return subprocess.run([sys.executable, str(DRIVER), stage, signal_name, *args], capture_output=True, text=True,
-                          timeout=300, start_new_session=True)
+                          timeout=300, start_new_session=True, preexec_fn=ctrl_c_reaches_it)
 
 
 def manifest_times(ws: Path) -> dict[str, list[float]]:

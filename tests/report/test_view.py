@@ -12,9 +12,15 @@ import urllib.request
 import pytest
 
 
+def ctrl_c_reaches_it() -> None:
+    """A shell that runs CI in the background ignores SIGINT in its children (POSIX), and Python then
+    installs no KeyboardInterrupt handler: give the child a terminal's default, as a user's shell does."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_view_serves_the_report(report_workspace):
     proc = subprocess.Popen([sys.executable, "-m", "recon.cli", "view", str(report_workspace), "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=ctrl_c_reaches_it)
     try:
         line = proc.stdout.readline()
         url = re.search(r"http://127\.0\.0\.1:\d+/report\.html", line)
