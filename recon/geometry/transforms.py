@@ -212,6 +212,13 @@ def up_direction(rotations: np.ndarray, centers: np.ndarray) -> np.ndarray:
     return np.array([0.0, 0.0, 1.0])
 
 
+def axis_angle_rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    """The rotation by ``angle`` (radians) about ``axis`` (Rodrigues' formula)."""
+    k = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
 def level_rotation(up: np.ndarray) -> np.ndarray:
     """The smallest rotation taking the unit vector ``up`` to +Z (a world whose up is +Z, as ENU)."""
     up = np.asarray(up, dtype=np.float64) / np.linalg.norm(up)
@@ -220,6 +227,4 @@ def level_rotation(up: np.ndarray) -> np.ndarray:
     s, c = np.linalg.norm(axis), float(up @ z)
     if s < 1e-12:
         return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    k = axis / s
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + s * K + (1 - c) * K @ K
+    return axis_angle_rotation(axis, float(np.arctan2(s, c)))

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from recon.geometry.transforms import project
 from recon.imaging.masks import mask_at
 from recon.mvs.views import ViewCamera, scaled_to
 from recon.surface.raycast import render_ids, scene_of
@@ -36,12 +37,10 @@ def masked_faces(vertices: np.ndarray, faces: np.ndarray, views: list[ViewCamera
         width, height = max(1, round(view.width * scale)), max(1, round(view.height * scale))
         cam = scaled_to(view, width, height)
         depth = render_ids(scene, cam, width, height)["depth"]
-        x = centres @ cam.R.T + cam.t
-        z = x[:, 2]
+        uv, z = project(cam.K, cam.R, cam.t, centres)
         front = z > 0
-        uv = np.full((len(x), 2), -1.0)
-        uv[front] = (x[front] @ cam.K.T)[:, :2] / z[front, None]
-        cols, rows = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+        cols = np.floor(np.where(front, uv[:, 0], -1)).astype(np.int64)
+        rows = np.floor(np.where(front, uv[:, 1], -1)).astype(np.int64)
         inside = front & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
         idx = np.flatnonzero(inside)
         idx = idx[z[idx] <= depth[rows[idx], cols[idx]] * (1 + DEPTH_TOLERANCE)]  # the faces it sees

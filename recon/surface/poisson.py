@@ -15,23 +15,17 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from recon._open3d import open3d
+from recon.geometry.transforms import axis_angle_rotation
 from recon.surface.options import MeshOptions
 
 log = logging.getLogger(__name__)
-
-
-def _oblique() -> np.ndarray:
-    """A fixed rotation by 0.6 rad about (1, 2, 3): no axis of it lies along a levelled frame's."""
-    axis = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + np.sin(0.6) * K + (1 - np.cos(0.6)) * K @ K
 
 
 #: Poisson's octree is aligned with the axes; surfaces parallel to its cells' faces (the ground and
 #: walls of a levelled model, recon/sparse/frame.py) come out worse: on the 24-view synthetic scene mesh
 #: F@0.2 % was 0.931 with the levelled frame's axes against 0.954-0.960 in three random frames. So the
 #: points are turned into this fixed oblique frame for Poisson, and the mesh back.
-OBLIQUE = _oblique()
+OBLIQUE = axis_angle_rotation(np.array([1.0, 2.0, 3.0]), 0.6)  # no axis of it along a levelled frame's
 
 
 def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | None = None,
