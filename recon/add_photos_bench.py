@@ -8,7 +8,12 @@ the second run has 23 photos to register, not 7. Prints the seconds of each run,
 from-scratch run (same process, same machine), registered photos, pose AUC, and what the second
 run reused (features, pairs, the previous model).
 
-    python -m recon.add_photos_bench [--datasets DIR] [--out DIR]
+Then the same with pipelines/full.yaml on the zoo's ``classic`` scene (24 views at 320x240, the
+size ``make bench-quality`` can be asked for; dense work dominates there): 20 views, then every
+6th view added, against all 24 from scratch; the fused cloud's and the mesh's F-scores at 0.2 %
+and 0.5 % of the scene's extent, and the depth maps the second run reused.
+
+    python -m recon.add_photos_bench [--datasets DIR] [--out DIR] [--only temple|zoo]
 """
 
 from __future__ import annotations
@@ -25,13 +30,16 @@ from recon.eval.poses import pose_metrics
 from recon.products import Published
 
 REPO = Path(__file__).resolve().parents[1]
+PIPELINES = Path(__file__).resolve().parent / "pipelines"
 DATASET = "temple_ring"
 ADDED = 7
+ZOO_SCENE, ZOO_VIEWS, ZOO_ADDED, ZOO_SIZE = "classic", 24, 4, (320, 240)
+TAUS = ("0.002", "0.005")
 
 
-def _run(images: Path, ws: Path) -> tuple[float, recon.pipeline.RunResult]:
+def _run(images: Path, ws: Path, config: Path = PIPELINES / "sparse.yaml") -> tuple[float, recon.pipeline.RunResult]:
     start = time.perf_counter()
-    result = recon.run(REPO / "pipelines" / "sparse.yaml", images=str(images), workspace=str(ws))
+    result = recon.run(config, images=str(images), workspace=str(ws))
     return time.perf_counter() - start, result
 
 
@@ -75,6 +83,55 @@ def bench_add_photos(datasets: Path, out: Path) -> dict | None:
     return rows
 
 
+def bench_zoo(out: Path) -> dict:
+    """The zoo scene's three runs (module doc): seconds, F-scores, the second run's summaries."""
+    from recon.eval.workspace import evaluate
+    from recon.synth.zoo import render_zoo
+
+    shutil.rmtree(out, ignore_errors=True)
+    scene = render_zoo(ZOO_SCENE, out / "scene", views=ZOO_VIEWS, width=ZOO_SIZE[0], height=ZOO_SIZE[1])
+    photos = sorted(p for p in scene.images_dir.iterdir() if p.is_file())
+    step = len(photos) // ZOO_ADDED
+    added = photos[step // 2::step][:ZOO_ADDED]
+    images = out / "images"
+    images.mkdir()
+    for photo in photos:
+        if photo not in added:
+            shutil.copy2(photo, images / photo.name)
+    rows = {}
+
+    def figures(ws: Path) -> dict:
+        f = evaluate(ws, scene.root)
+        return {**{f"{k}@{t}": f[k][f"fscore@{t}"] / 100 for k in ("fused", "mesh") for t in TAUS},
+                "registered": f["poses"]["registered"], "total": len(photos)}
+
+    seconds, _ = _run(scene.images_dir, out / "scratch", PIPELINES / "full.yaml")
+    rows["from scratch"] = {"seconds": seconds, **figures(out / "scratch")}
+    seconds, _ = _run(images, out / "added", PIPELINES / "full.yaml")
+    rows[f"{len(photos) - ZOO_ADDED} views"] = {"seconds": seconds, **figures(out / "added")}
+    for photo in added:
+        shutil.copy2(photo, images / photo.name)
+    seconds, result = _run(images, out / "added", PIPELINES / "full.yaml")
+    rows[f"{ZOO_ADDED} added"] = {"seconds": seconds, "stages": result.seconds, "summaries": result.summaries,
+                                  **figures(out / "added")}
+    return rows
+
+
+def print_zoo(rows: dict) -> None:
+    scratch = rows["from scratch"]["seconds"]
+    cols = [f"{k}@{t}" for k in ("fused", "mesh") for t in TAUS]
+    print(f"{'run':<16}{'seconds':>9}{'ratio':>7}{'reg':>8}" + "".join(f"{'F ' + c:>16}" for c in cols))
+    for name, r in rows.items():
+        print(f"{name:<16}{r['seconds']:>9.1f}{r['seconds'] / scratch:>7.2f}{r['registered']:>5}/{r['total']:<2}"
+              + "".join(f"{r[c]:>16.3f}" for c in cols))
+    last = list(rows.values())[-1]
+    print(f"second run, seconds per stage: {', '.join(f'{k} {v:.1f}' for k, v in last['stages'].items())}")
+    mvs = last["summaries"].get("mvs", {})
+    print(f"second run: depth maps of {mvs.get('reused', 0)} of {mvs.get('views', 0)} views reused, "
+          f"{mvs.get('computed', 0)} computed ({mvs.get('photometric_computed', 0)} photometric passes); "
+          f"sfm: {last['summaries']['sfm']['mapping']}")
+
+
 def print_add_photos(rows: dict) -> None:
     scratch = rows["from scratch"]["seconds"]
     print(f"{'run':<16}{'seconds':>9}{'ratio':>7}{'reg':>8}{'AUC@1':>7}{'AUC@3':>7}{'AUC@5':>7}")
@@ -93,12 +150,18 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m recon.add_photos_bench")
     parser.add_argument("--datasets", type=Path, default=recon.datasets_root())
     parser.add_argument("--out", type=Path, default=REPO / "bench_out" / "add_photos")
+    parser.add_argument("--only", choices=["temple", "zoo"])
     args = parser.parse_args(argv)
-    print(f"\n== add photos: {DATASET}, all but {ADDED} photos, then those {ADDED} added (same command), "
-          "vs all from scratch (ratio = seconds / from-scratch seconds) ==", flush=True)
-    rows = bench_add_photos(args.datasets, args.out)
-    if rows is not None:
-        print_add_photos(rows)
+    if args.only in (None, "temple"):
+        print(f"\n== add photos: {DATASET}, all but {ADDED} photos, then those {ADDED} added (same command), "
+              "vs all from scratch (ratio = seconds / from-scratch seconds) ==", flush=True)
+        rows = bench_add_photos(args.datasets, args.out / DATASET)
+        if rows is not None:
+            print_add_photos(rows)
+    if args.only in (None, "zoo"):
+        print(f"\n== add photos, full pipeline: zoo scene {ZOO_SCENE} ({ZOO_SIZE[0]}x{ZOO_SIZE[1]}), "
+              f"{ZOO_VIEWS - ZOO_ADDED} views, then {ZOO_ADDED} added, vs all {ZOO_VIEWS} from scratch ==", flush=True)
+        print_zoo(bench_zoo(args.out / ZOO_SCENE))
     return 0
 
 

@@ -11,7 +11,9 @@ Machines are noisy: compare the ratio, not the seconds.
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
+import stat
 import sys
 import time
 from pathlib import Path
@@ -102,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m recon.bench")
     parser.add_argument("--only", choices=[SPARSE, "lowlight", "add_photos", "mvs", "dense", "wide", "scale", "quality"],
                         default=None,
-                        help="one section; without it every section but scale (300 views, ~30 min: make bench-scale) "
+                        help="one section; without it every section but scale (300 views, 1-2 h: make bench-scale) "
                              "and quality (the scene zoo, hours: make bench-quality)")
     parser.add_argument("--datasets", type=Path, default=recon.datasets_root())
     parser.add_argument("--out", type=Path, default=REPO / "bench_out")
@@ -126,8 +128,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.only in (None, "mvs"):
         from recon.mvs import bench as mvs_bench
 
-        print("\n== mvs: recon's CPU PatchMatch (OpenMVS 2.3 DensifyPointCloud measured on these cores: "
-              "fountain_p11 at 1536x1024 53 s/view, 1.15 GB) ==", flush=True)
+        print("\n== mvs: recon's CPU PatchMatch, beside OpenMVS 2.3 DensifyPointCloud on fountain_p11 ==", flush=True)
         mvs_bench.main(["--cache", str(args.out / "mvs")])
     if args.only in (None, "dense"):
         bench_dense(args.out / "dense")
@@ -193,6 +194,19 @@ def bench_dense(out: Path) -> None:
               f"{m['completeness@0.002']:>11.1f}   {OPENMVS[key + '@0.002']:.3f} / {OPENMVS[key + '@0.005']:.3f}")
     print(f"held-out PSNR: textured {np.mean(psnr['texture']):.2f} dB, vertex colours "
           f"{np.mean(psnr['vertex colours']):.2f} dB (OpenMVS 2.3 TextureMesh: {OPENMVS['psnr']} dB)")
+    photos = sum(p.stat().st_size for p in (scene_dir / "images").iterdir())
+    print(f"workspace: {_bytes_on_disk(ws) / 1e6:.0f} MB besides the photos ({photos / 1e6:.1f} MB)")
+
+
+def _bytes_on_disk(folder: Path) -> int:
+    """Bytes of the regular files under ``folder``, each hard-linked file once, links not followed."""
+    seen: dict[tuple[int, int], int] = {}
+    for root, _, names in os.walk(folder):
+        for name in names:
+            st = os.lstat(os.path.join(root, name))
+            if stat.S_ISREG(st.st_mode):
+                seen[(st.st_dev, st.st_ino)] = st.st_size
+    return sum(seen.values())
 
 
 def bench_lowlight(datasets: Path, out: Path) -> None:

@@ -51,7 +51,7 @@ def _parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser("clean", help="delete cached outputs the current config does not use")
     c.add_argument("target", help="a config file or a workspace folder")
-    c.add_argument("--all", action="store_true", help="delete every cached output")
+    c.add_argument("--all", action="store_true", help="delete every cached output and the per-photo / per-pair / per-view results later runs reuse")
     c.add_argument("--workspace")
 
     e = sub.add_parser("eval", help="evaluate a workspace against ground truth")

@@ -12,7 +12,9 @@ again (docs/ARCHITECTURE.md, "The cache").
 Items are data, never code: they are read with NumPy's ``allow_pickle=False`` by their stages.
 Each item has a record (``<key>.json``: size and SHA-256 of its content, written after the item)
 and is handed out only while its content matches it, so a damaged item, or one changed through a
-hard link from a stage output, is computed again rather than reused.
+hard link from a stage output, is computed again rather than reused. The record may also hold the
+item's ``meta``: what determined it that is not exact enough to hash (a depth map's cameras, which
+every bundle adjustment moves a little), for the stage to compare within a tolerance.
 """
 
 from __future__ import annotations
@@ -59,6 +61,11 @@ class ItemStore:
             return None
         return path if file_digest(path) == record.get("sha256") else None
 
+    def meta(self, key: str) -> dict | None:
+        """The ``meta`` recorded with the item ``key`` (None when none or no such record)."""
+        record = read_json(self._record(key))
+        return record.get("meta") if isinstance(record, dict) else None
+
     def link(self, key: str, dest: Path) -> bool:
         """Hard-link the item to ``dest`` (a stage's output file; copied where the file system refuses
         hard links). False, and nothing written, when the store has no such item."""
@@ -69,16 +76,16 @@ class ItemStore:
             _link_or_copy(path, tmp)
         return True
 
-    def put(self, key: str, source: Path) -> Path:
+    def put(self, key: str, source: Path, meta: dict | None = None) -> Path:
         """Add a finished file as the item ``key`` (hard-linked, or copied), replacing any item there."""
-        return self.write(key, lambda tmp: _link_or_copy(source, tmp))
+        return self.write(key, lambda tmp: _link_or_copy(source, tmp), meta)
 
-    def write(self, key: str, writer: Callable[[Path], None]) -> Path:
-        """Add the item ``key`` that ``writer(path)`` writes; atomically, then its record."""
+    def write(self, key: str, writer: Callable[[Path], None], meta: dict | None = None) -> Path:
+        """Add the item ``key`` that ``writer(path)`` writes; atomically, then its record (with ``meta``)."""
         path = self.path(key)
         with atomic(path) as tmp:
             writer(tmp)
-        record = {"size": path.stat().st_size, "sha256": file_digest(path)}
+        record = {"size": path.stat().st_size, "sha256": file_digest(path), **({"meta": meta} if meta else {})}
         with atomic(self._record(key)) as tmp:  # not flushed to disk: a record torn by a crash fails the check
             tmp.write_text(json.dumps(record))
         return path

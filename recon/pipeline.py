@@ -18,6 +18,7 @@ import json
 import logging
 import platform
 import shutil
+import stat
 import time
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -126,7 +127,8 @@ def plan(cfg: RunConfig, ws: Workspace) -> Plan:
     for name in order:
         stage = REGISTRY[name]
         probe = StageContext(name=name, out=Path(), workspace=ws, images=cfg.images, seed=cfg.run.seed,
-                             executor=None, base=cfg.base, hashes=hashes, video=cfg.video)
+                             executor=None, base=cfg.base, hashes=hashes, video=cfg.video,
+                             upstream={dep: ws.output_dir(dep, keys[dep]) for dep in stage.upstream if dep in keys})
         mat = {
             "stage": name,
             "version": stage.version,
@@ -425,6 +427,12 @@ def _diff(old: Any, new: Any, path: str) -> list[str]:
     return [] if old == new else [f"{path}: {old!r} -> {new!r}"]
 
 
+def _unshared_bytes(files) -> int:
+    """Bytes that deleting ``files`` frees: a file hard-linked elsewhere (an item of :mod:`recon.items`
+    and a stage output are one file) frees nothing until its last name goes."""
+    return sum(st.st_size for st in (f.lstat() for f in files) if stat.S_ISREG(st.st_mode) and st.st_nlink == 1)
+
+
 def clean(cfg: RunConfig | None, workspace: Path, everything: bool = False) -> tuple[int, int]:
     """Remove cached outputs the current config does not use (or all of them). Returns (folders, bytes)."""
     ws = Workspace(workspace)
@@ -442,9 +450,12 @@ def clean(cfg: RunConfig | None, workspace: Path, everything: bool = False) -> t
             for out in stage_dir.iterdir():
                 if out in keep:
                     continue
-                freed += sum(f.stat().st_size for f in out.rglob("*") if f.is_file() and not f.is_symlink())
+                freed += _unshared_bytes(out.rglob("*"))
                 shutil.rmtree(out, ignore_errors=True)
                 removed += 1
+        if everything:  # per-item results (recon.items) stay otherwise: they are what added photos reuse
+            freed += _unshared_bytes((ws.meta / "items").rglob("*"))
+            shutil.rmtree(ws.meta / "items", ignore_errors=True)
         if everything:
             (ws.meta / "state.json").unlink(missing_ok=True)
             for stage in REGISTRY.values():

@@ -272,11 +272,13 @@ class DenseScene(Product):
 
 
 class DepthMaps(Product):
-    """mvs: per-view depth and normal maps in COLMAP's format."""
+    """mvs: per-view depth and normal maps in COLMAP's format: the final (geometric) ones, and the
+    photometric ones only with ``mvs.keep_photometric`` (no later stage reads them)."""
 
     required = ("stereo/depth_maps",)
     publish = {"stereo": "dense/stereo"}
-    describe = ("stereo/depth_maps/<image>.{photometric,geometric}.bin", "stereo/normal_maps/...")
+    describe = ("stereo/depth_maps/<image>.geometric.bin", "stereo/normal_maps/<image>.geometric.bin",
+                "stereo/{depth,normal}_maps/<image>.photometric.bin")
 
     @property
     def folder(self) -> Path:
@@ -288,15 +290,20 @@ class DepthMaps(Product):
 
 
 class FusedCloud(Product):
-    """fusion: the fused point cloud with normals and colours."""
+    """fusion: the fused point cloud with normals and colours; with ``fusion.keep_visibility``, COLMAP's
+    record of the views that saw each point (``fused.ply.vis``, which its Delaunay mesher reads)."""
 
     required = ("fused.ply",)
-    publish = {"fused.ply": "dense/fused.ply"}
-    describe = ("fused.ply",)
+    publish = {"fused.ply": "dense/fused.ply", "fused.ply.vis": "dense/fused.ply.vis"}
+    describe = ("fused.ply", "fused.ply.vis")
 
     @property
     def path(self) -> Path:
         return self.root / "fused.ply"
+
+    @property
+    def visibility(self) -> Path:
+        return self.root / "fused.ply.vis"
 
 
 class SurfaceMesh(Product):

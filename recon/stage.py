@@ -101,7 +101,8 @@ def resolve_path(base: Path, value: str | os.PathLike) -> Path:
 @dataclass
 class StageContext:
     """What a stage sees. While the cache key is computed (:meth:`Stage.fingerprint`) ``out`` is not
-    yet made and ``executor`` is None; while it runs, ``out`` is its temporary output folder."""
+    yet made, ``executor`` is None and ``upstream`` holds only the stages planned in this run (where
+    their outputs will be); while it runs, ``out`` is its temporary output folder."""
 
     name: str
     out: Path

@@ -1,4 +1,5 @@
-"""Georeferencing: the similarity that takes a model's camera centres onto their photos' GPS positions.
+"""Georeferencing: the similarity that takes a model's camera centres onto their photos' GPS positions,
+or its points onto surveyed ground control points (:func:`align_to_control`).
 
 RANSAC over minimal sets of three photos (MSAC cost), each photo's inlier threshold set by its own
 GPS accuracy, then least squares (Umeyama, :func:`recon.geometry.transforms.umeyama`) on the inliers,
@@ -137,3 +138,89 @@ def _bootstrap(centres, gps, inliers, sim: Similarity, rng, samples: int) -> tup
         placed.append(fit.apply(centres))
     spread = np.sqrt(np.stack(placed).var(axis=0).sum(axis=1))
     return float(np.std(scales) / sim.s), float(np.median(spread))
+
+
+@dataclass(frozen=True, eq=False)
+class ControlAlignment:
+    """A fitted model -> frame similarity from control points (and optionally GPS anchors)."""
+
+    similarity: Similarity
+    residuals: np.ndarray  # (N, 3) similarity(point) - target, per control point
+    inliers: np.ndarray  # (N,) bool: used in the final fit
+    checks: np.ndarray  # (N,) leave-one-out distance: the point's error in a fit without it (NaN: not possible)
+    scale_std: float  # relative standard error of the scale: jackknife over the inliers (NaN below 3 fits)
+
+
+def weighted_umeyama(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> Similarity:
+    """Least-squares similarity ``dst ~ s R src + t`` minimising sum w |dst - (s R src + t)|^2 (Umeyama
+    1991 with weights): with equal weights, :func:`recon.geometry.transforms.umeyama`."""
+    src = np.asarray(src, dtype=float).reshape(-1, 3)
+    dst = np.asarray(dst, dtype=float).reshape(-1, 3)
+    w = np.asarray(weights, dtype=float) / np.sum(weights)
+    mu_s, mu_d = w @ src, w @ dst
+    xs, xd = src - mu_s, dst - mu_d
+    U, D, Vt = np.linalg.svd((xd * w[:, None]).T @ xs)
+    S = np.eye(3)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[2, 2] = -1.0
+    R = U @ S @ Vt
+    s = float(np.trace(np.diag(D) @ S) / (w @ (xs**2).sum(axis=1)))
+    return Similarity(s, R, mu_d - s * R @ mu_s)
+
+
+def align_to_control(points: np.ndarray, targets: np.ndarray, sigma: float,
+                     anchors: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> ControlAlignment:
+    """Similarity ``targets ~ s R points + t`` from control points (N, 3) known to ``sigma`` (metres),
+    jointly with ``anchors`` (source (M, 3), target (M, 3), sigma (M,)): e.g. cameras and their GPS
+    positions, which fix what fewer than 3 control points cannot. Each correspondence is weighted by
+    1 / sigma^2. The control point farthest from its target beyond ``CHI3_99 * sigma`` is left out
+    and the fit repeated, while enough remain (3 without anchors, 1 with).
+
+    Raises :class:`GeorefError` when the points cannot fix a similarity (too few, along a line)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    targets = np.asarray(targets, dtype=float).reshape(-1, 3)
+    n, least = len(points), 3 if anchors is None else 1
+    if n < least:
+        raise GeorefError(f"{n} control point(s): at least {least} are needed" +
+                          (" without GPS" if anchors is None else ""))
+    if anchors is None:
+        _check_spread(targets, np.full(n, CHI3_99 * sigma))
+    inliers = np.ones(n, bool)
+    while True:
+        sim = _control_fit(points, targets, sigma, anchors, inliers)
+        residuals = sim.apply(points) - targets
+        distance = np.where(inliers, np.linalg.norm(residuals, axis=1), -1.0)
+        worst = int(np.argmax(distance))
+        if distance[worst] <= CHI3_99 * sigma or inliers.sum() <= least:
+            break
+        inliers[worst] = False
+    checks, scales = np.full(n, math.nan), []
+    for k in range(n):  # leave-one-out: each point's error when it does not pull the fit
+        others = inliers.copy()
+        others[k] = False
+        if others.sum() >= least and (anchors is not None or _spans(targets[others], sigma)):
+            fit = _control_fit(points, targets, sigma, anchors, others)
+            checks[k] = float(np.linalg.norm(fit.apply(points[k]) - targets[k]))
+            if inliers[k]:
+                scales.append(fit.s)
+    m = len(scales)
+    scale_std = float(np.sqrt((m - 1) / m * np.sum((np.array(scales) - np.mean(scales)) ** 2)) / sim.s) \
+        if m >= 3 else math.nan
+    return ControlAlignment(sim, residuals, inliers, checks, scale_std)
+
+
+def _control_fit(points, targets, sigma: float, anchors, use: np.ndarray) -> Similarity:
+    src, dst, w = points[use], targets[use], np.full(int(use.sum()), sigma**-2.0)
+    if anchors is not None:
+        a_src, a_dst, a_sigma = (np.asarray(a, dtype=float) for a in anchors)
+        src, dst = np.vstack([src, a_src.reshape(-1, 3)]), np.vstack([dst, a_dst.reshape(-1, 3)])
+        w = np.concatenate([w, np.broadcast_to(a_sigma, (len(a_src),)) ** -2.0])
+    return weighted_umeyama(src, dst, w)
+
+
+def _spans(targets: np.ndarray, sigma: float) -> bool:
+    try:
+        _check_spread(targets, np.full(len(targets), CHI3_99 * sigma))
+    except GeorefError:
+        return False
+    return len(targets) >= 3

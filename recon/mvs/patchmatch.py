@@ -21,7 +21,10 @@ The variant follows Gipuma (Galliani et al., ICCV 2015) and ACMH/ACMM (Xu and Ta
   the coarser planes re-intersected with its own pixel rays, then runs a few sweeps; there, each
   pixel is matched only against the K sources that were best for its upsampled plane (a cheap form
   of view selection: it divides the cost of the fine levels by about S / K), and the finest level
-  propagates from the four near regions only; a candidate equal to the pixel's plane is skipped;
+  propagates from the four near regions only; a candidate equal to the pixel's plane, or to a
+  neighbour's plane already tested at the pixel (neighbours often share one), is skipped;
+* a hypothesis is abandoned as soon as the costs of the sources matched so far prove that it cannot
+  beat the pixel's best (where all of a pixel's sources count in its mean): the same planes win;
 * geometric consistency (COLMAP's geom_consistency, ACMM's ACMM+geom): a second pass adds to each
   source's cost the capped forward-backward reprojection error through that source's depth map;
 * filtering keeps a pixel when its photometric cost is low and enough source depth maps agree with it
@@ -358,14 +361,30 @@ def _warped_sums(srcs, s, cu, cv, dudx, dudy, dvdx, dvdy, window, weights, centr
 
 @njit(cache=True, fastmath=True)
 def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, window, kinv, A, b,
-                    srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k, min_var, costs, scratch):
+                    srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k, min_var, costs, scratch,
+                    bound=-1.0):
     """Cost of the plane (depth, n) at pixel (x, y): mean of the top_k costs of the sources in the
     bit ``mask``, whose costs are left in ``costs[s]`` (``scratch`` is work space of length S).
 
     A source's cost is 1 - NCC of the bilateral-weighted window warped by the plane's homography,
     plus ``geo_weight`` times the capped forward-backward reprojection error through the source's
     depth map when ``geo_weight`` > 0.
+
+    A hypothesis that can no longer cost less than ``bound`` (>= 0; negative: none) is abandoned,
+    returning a cost above ``bound`` and leaving the rest of ``costs`` unset, as soon as the costs
+    summed so far prove it. That holds when the mask has at most top_k sources (every one counts in
+    the mean, and no cost is negative): above the coarsest level, where each pixel keeps its top_k.
+    Propagation and refinement pass the pixel's best cost, so they keep exactly the planes they would
+    keep without it.
     """
+    n_views = 0
+    if bound >= 0.0:  # (not an infinite default: fastmath assumes no infinities)
+        for s in range(A.shape[0]):
+            n_views += (mask >> s) & 1
+        if n_views > top_k:  # a source not yet matched could still push a costly one out of the mean
+            bound = -1.0
+    limit = bound * n_views * (1.0 + 1e-6)  # (the margin covers the summation order)
+    total = 0.0
     px = x + 0.5
     py = y + 0.5
     rx, ry, rz = _ray(kinv, x, y)
@@ -380,6 +399,8 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
     for s in range(A.shape[0]):
         if not (mask >> s) & 1:
             continue
+        if bound >= 0.0 and total > limit:
+            return total / n_views
         h00 = A[s, 0, 0] + b[s, 0] * m0
         h01 = A[s, 0, 1] + b[s, 0] * m1
         h02 = A[s, 0, 2] + b[s, 0] * m2
@@ -394,11 +415,13 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
         cz = h20 * px + h21 * py + h22
         if not cz > 1e-6:  # behind (or at) the source camera; also keeps the warp finite
             costs[s] = worst
+            total += worst
             continue
         cu = (h00 * px + h01 * py + h02) / cz
         cv = (h10 * px + h11 * py + h12) / cz
         if not (cu >= 0.0 and cv >= 0.0 and cu < width and cv < height):
             costs[s] = worst
+            total += worst
             continue
         # the homography is linearised at the window centre: over a window a few pixels wide the
         # second-order (perspective) term is negligible unless the plane is seen nearly edge-on
@@ -418,6 +441,7 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
         if geo_weight > 0.0:
             cost += geo_weight * min(_reprojection_error(src_depth, s, cu, cv, px, py, M, c), geo_max)
         costs[s] = cost
+        total += cost
     return _mean_of_best(costs, mask, top_k, scratch)
 
 
@@ -532,6 +556,15 @@ def _same_plane(d, n0, n1, n2, bd, b0, b1, b2):
     return abs(d - bd) <= 1e-6 * bd and n0 == b0 and n1 == b1 and n2 == b2
 
 
+@njit(cache=True, fastmath=True)
+def _tested_before(tested, n_tested, d, n0, n1, n2):
+    """Whether the plane is one of the first ``n_tested`` rows of ``tested`` (depth, normal)."""
+    for i in range(n_tested):
+        if _same_plane(d, n0, n1, n2, tested[i, 0], tested[i, 1], tested[i, 2], tested[i, 3]):
+            return True
+    return False
+
+
 @njit(parallel=True, cache=True, fastmath=True)
 def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max,
                          window, sigma_spatial, sigma_color, min_var, top_k, depth, normal, cost, views,
@@ -548,10 +581,12 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
         centred = np.empty(n)
         costs = np.empty(A.shape[0])
         scratch = np.empty(A.shape[0])
+        tested = np.empty((n_regions, 4))  # (depth, normal) of the neighbours' planes tested at the pixel
         for x in range((y + colour) % 2, width, 2):
             ref_var = reference_patch(ref, x, y, window, sigma_spatial, sigma_color, weights, centred)
             if ref_var < min_var:
                 continue
+            n_tested = 0
             mask = views[y, x]
             best = cost[y, x]
             bd = depth[y, x]
@@ -569,9 +604,16 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
                 d = _plane_depth_at(kinv, depth[yn, xn], n0, n1, n2, xn, yn, x, y)
                 if d < dmin or d > dmax or _same_plane(d, n0, n1, n2, bd, b0, b1, b2):
                     continue
+                if _tested_before(tested, n_tested, d, n0, n1, n2):  # it lost then, it would lose now
+                    continue
+                tested[n_tested, 0] = d
+                tested[n_tested, 1] = n0
+                tested[n_tested, 2] = n1
+                tested[n_tested, 3] = n2
+                n_tested += 1
                 h = hypothesis_cost(x, y, d, n0, n1, n2, mask, weights, centred, ref_var, window, kinv,
                                     A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k,
-                                    min_var, costs, scratch)
+                                    min_var, costs, scratch, best)
                 if h < best:
                     best = h
                     bd = d
@@ -608,7 +650,7 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
                     continue
                 h = hypothesis_cost(x, y, d, n0, n1, n2, mask, weights, centred, ref_var, window, kinv,
                                     A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k,
-                                    min_var, costs, scratch)
+                                    min_var, costs, scratch, best)
                 if h < best:
                     best = h
                     bd = d

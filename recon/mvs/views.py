@@ -6,6 +6,11 @@ narrow below, wide above); points seen under less than ``min_triangulation_angle
 a source seeing the shared points at a very different resolution (ratio of depth / focal length) is
 skipped. The depth range is the 1-99 percentile of the reference's point depths, p1 / (1 + margin) to
 p99 * (1 + margin).
+
+``keep`` gives views their sources of an earlier run (photos added to a workspace): a view keeps
+them while every one of them still qualifies as a source and its ``reselect_top`` best-scoring
+sources now are among them, so that its depth map can be reused (:mod:`recon.mvs.reuse`) rather
+than recomputed because a new photo now ranks somewhere among its eight.
 """
 
 from __future__ import annotations
@@ -80,9 +85,12 @@ def angle_weight(angle_deg: np.ndarray) -> np.ndarray:
 
 
 def select_problems(reconstruction: pycolmap.Reconstruction, options: MVSOptions = MVSOptions(),
-                    min_points: int = 10) -> list[Problem]:
+                    min_points: int = 10, keep: dict[str, tuple[str, ...]] | None = None,
+                    reselect_top: int = 0) -> list[Problem]:
     """One problem per registered image that shares at least ``min_points`` well-triangulated points
-    with some other image; images without any such source are left out (logged)."""
+    with some other image; images without any such source are left out (logged). A view named in
+    ``keep`` keeps those sources when all of them still qualify and include its ``reselect_top``
+    best (module doc)."""
     cameras: dict[int, ViewCamera] = {}
     for image_id, image in reconstruction.images.items():
         if image.has_pose:
@@ -136,6 +144,10 @@ def select_problems(reconstruction: pycolmap.Reconstruction, options: MVSOptions
             continue
         scores.sort(key=lambda item: (-item[0], item[1]))
         sources = tuple(name for _, name in scores[: options.max_sources])
+        kept = (keep or {}).get(cam.name)
+        if kept and len(kept) <= options.max_sources and set(kept) <= {name for _, name in scores} \
+                and set(sources[:reselect_top]) <= set(kept):
+            sources = tuple(kept)
         z = xyz[seen] @ cam.R[2] + cam.t[2]
         z = z[z > 0]
         if len(z) < min_points:

@@ -23,6 +23,7 @@ class Sources:
     database: Path | None = None          # COLMAP database.db with keypoints and verified pairs
     model: Path | None = None             # a COLMAP model folder (the largest model, sparse/0)
     models_json: Path | None = None       # the sfm stage's registration report
+    georeference: Path | None = None      # the sfm stage's georeference.json (scale and position)
     stages: list[dict] = field(default_factory=list)  # stage manifests, in pipeline order
     run_started: float | None = None      # when the run that makes the report started
     config: dict = field(default_factory=dict)        # the run's resolved config

@@ -92,6 +92,10 @@ def build_report(sources: gather.Sources, *, title: str, evaluation: dict | None
         sections.append(("sparse-model", "Sparse model", _sparse_section(model, registration, figure)))
         summary["registered"] = len(model.names)
         summary["points"] = len(model.points)
+    georef = _read_json(sources.georeference)
+    if georef:
+        sections.append(("georeference", "Scale and position", _georef_section(georef, model, figure)))
+        summary["scale_source"] = georef.get("scale_source", "none")
     if _exists(sources.stereo):
         count, views = gather.dense_views(sources.stereo, limits.thumbnails)
         if count:
@@ -216,7 +220,8 @@ def _sparse_section(model: gather.Model, registration: dict, figure) -> str:
                            ("horizontal axis 1", "horizontal axis 2"))
     side = plots.scene_view(points, colors, model.centers, directions, np.array([a, up]), "Side view",
                             ("horizontal axis 1", "up"))
-    return (f'<div class="kpis">{"".join(kpis)}</div><p class="muted" id="reprojection-definition">'
+    return (_mapper_note(registration) + f'<div class="kpis">{"".join(kpis)}</div>'
+            '<p class="muted" id="reprojection-definition">'
             f'{_e(REPROJECTION_DEFINITION)}</p><div class="plots">'
             + figure(plots.track_lengths(model.track_lengths), "track-lengths", "Track length histogram")
             + figure(plots.reprojection_errors(model.point_errors, model.mean_error), "reprojection-errors",
@@ -224,6 +229,75 @@ def _sparse_section(model: gather.Model, registration: dict, figure) -> str:
             + figure(top, "top-view", "Cameras and points seen from above (up = the photos' average up)")
             + figure(side, "side-view", "Cameras and points seen from the side")
             + "</div>")
+
+
+def _georef_section(georef: dict, model: gather.Model | None, figure) -> str:
+    """What fixed the model's scale and position (georeference.json), with the residuals of the GPS
+    photos, GCPs and scale bars, and a map of the photos when the model is in East-North-Up metres."""
+    source = georef.get("scale_source", "none")
+    kpis = [_kpi(source, "scale from")]
+    if georef.get("scale_relative_std") is not None:
+        kpis.append(_kpi(f"{100 * georef['scale_relative_std']:.2g} %", "scale uncertainty (1 sigma)"))
+    origin = georef.get("origin")
+    if georef.get("georeferenced") and origin:
+        kpis.append(_kpi(f"{origin['lat']:.6f}, {origin['lon']:.6f}", "origin (lat, lon)"))
+    residuals = georef.get("residuals_m")
+    if residuals:
+        kpis.append(_kpi(f"{residuals['median']:.2f} m / {residuals['p90']:.2f} m", "GPS residuals median / p90"))
+    gcp = georef.get("gcp")
+    if gcp:
+        kpis.append(_kpi(f"{gcp['rms_m']:.3f} m", "GCP residual RMS"))
+        if gcp.get("check_rms_m") is not None:
+            kpis.append(_kpi(f"{gcp['check_rms_m']:.3f} m", "GCP leave-one-out check RMS"))
+    out = [f'<div class="kpis">{"".join(kpis)}</div>']
+    out.append(f'<p class="muted">Frame: {_e(georef.get("crs") or "as the mapper left it, up along +Z")}.'
+               + (f" Not georeferenced: {_e(georef['reason'])}." if georef.get("reason") else "") + "</p>")
+    photos = georef.get("photos") or []
+    if georef.get("georeferenced") and model is not None:
+        out.append('<div class="plots">' + figure(plots.enu_map(model.centers, photos, (gcp or {}).get("points", [])),
+                                                  "enu-map", "Photos and control points on a map (ENU metres)")
+                   + "</div>")
+    if gcp:
+        rows = "".join(
+            f"<tr><td>{_e(g['name'])}</td><td>{'yes' if g['inlier'] else '<span class=bad>no: outlier</span>'}</td>"
+            f"<td class=num>{g['residual_m']:.3f}</td><td class=num>"
+            + " ".join(f"{v:+.3f}" for v in g["residual_enu"]) + "</td><td class=num>"
+            + ("—" if g["check_m"] is None else f"{g['check_m']:.3f}") + f"</td><td class=num>{len(g['photos'])}"
+            f"</td><td class=num>{g['reprojection_px']:.2f}</td></tr>" for g in gcp["points"])
+        out.append('<h3>Ground control points</h3><table id="gcps"><tr><th>GCP</th><th>used</th>'
+                   "<th class=num>residual (m)</th><th class=num>east north up (m)</th><th class=num>check (m)</th>"
+                   "<th class=num>photos</th><th class=num>max reproj. (px)</th></tr>" + rows + "</table>"
+                   f'<p class="muted">{_e(gcp["what"])}.</p>')
+        if gcp["not_used"]:
+            out.append("<ul>" + "".join(f"<li><b>{_e(n)}</b> not used: {_e(why)}</li>"
+                                        for n, why in gcp["not_used"].items()) + "</ul>")
+    if georef.get("scale_bars"):
+        rows = "".join(f"<tr><td>{k}</td><td class=num>{b['length_m']:.4g}</td><td class=num>{b['model_length_m']:.4g}"
+                       f"</td><td class=num>{b['error_m']:+.4f}</td><td class=num>{b['reprojection_px']:.2f}</td></tr>"
+                       for k, b in enumerate(georef["scale_bars"], start=1))
+        out.append('<h3>Scale bars</h3><table id="scale-bars"><tr><th>bar</th><th class=num>length (m)</th>'
+                   "<th class=num>in the model (m)</th><th class=num>difference (m)</th>"
+                   "<th class=num>max reproj. (px)</th></tr>" + rows + "</table>")
+    if photos:
+        rows = "".join(f"<tr><td>{_e(p['name'])}</td><td class=num>{p['sigma_m']:.3g}</td>"
+                       f"<td class=num>{p['residual_m']:.2f}</td>"
+                       f"<td>{'yes' if p['inlier'] else '<span class=bad>no: outlier</span>'}</td></tr>" for p in photos)
+        out.append('<h3>GPS residuals per photo</h3><div class="scroll"><table id="gps-photos"><tr><th>photo</th>'
+                   "<th class=num>GPS sigma (m)</th><th class=num>camera to GPS (m)</th><th>used</th></tr>"
+                   + rows + "</table></div>")
+    return "".join(out)
+
+
+def _mapper_note(registration: dict) -> str:
+    """Which mapper made the model and why (the sfm fallback), and the warning of a model that leaves
+    out more than a quarter of the photos."""
+    out = ""
+    if registration.get("warning"):
+        out += f'<p class="bad" id="sfm-warning">{_e(registration["warning"])}</p>'
+    mapper = registration.get("mapper")
+    if mapper:
+        out += f'<p id="mapper">Made by the {_e(mapper["used"])} mapper: {_e(mapper["why"])}.</p>'
+    return out
 
 
 def _dense_section(count: int, views: list[gather.DenseView], figure) -> str:

@@ -166,3 +166,37 @@ def _thumbnail(rgb: np.ndarray, width: int) -> bytes:
     buf = io.BytesIO()
     image.save(buf, format="PNG", optimize=True)
     return buf.getvalue()
+
+
+def enu_map(cameras: np.ndarray, photos: list[dict], gcps: list[dict]) -> bytes:
+    """A map of a georeferenced model seen from above, in East-North metres: the cameras, each photo's
+    GPS position joined to its camera (outliers red), the GCPs' surveyed positions (triangles) and
+    where the model has them (crosses)."""
+    fig = _figure(6.5, 5.5)
+    ax = fig.add_subplot()
+    if len(cameras):
+        ax.scatter(cameras[:, 0], cameras[:, 1], s=10, color=REGISTERED, label="cameras", zorder=3)
+    for photo in photos:
+        (ge, gn, _), (ce, cn, _) = photo["gps_enu"], photo["camera_enu"]
+        colour = "#888888" if photo["inlier"] else UNREGISTERED
+        ax.plot([ge, ce], [gn, cn], color=colour, linewidth=0.8, zorder=2)
+    if photos:
+        gps = np.array([p["gps_enu"] for p in photos])
+        bad = np.array([not p["inlier"] for p in photos])
+        ax.scatter(gps[~bad, 0], gps[~bad, 1], s=14, facecolors="none", edgecolors="#444444", label="GPS", zorder=2)
+        if bad.any():
+            ax.scatter(gps[bad, 0], gps[bad, 1], s=18, color=UNREGISTERED, label="GPS outliers", zorder=2)
+    if gcps:
+        target = np.array([g["target_enu"] for g in gcps])
+        found = np.array([g["model_enu"] for g in gcps])
+        ax.scatter(target[:, 0], target[:, 1], marker="^", s=40, color="#2a9d4b", label="GCPs (surveyed)", zorder=4)
+        ax.scatter(found[:, 0], found[:, 1], marker="x", s=30, color="#111111", label="GCPs in the model", zorder=5)
+        for g in gcps:
+            ax.annotate(g["name"], g["target_enu"][:2], fontsize=7, xytext=(4, 4), textcoords="offset points")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.grid(True, linewidth=0.3)
+    ax.legend(fontsize=7, loc="best")
+    ax.set_title("Seen from above (local East-North-Up metres)")
+    return _png(fig)

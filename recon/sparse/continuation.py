@@ -4,20 +4,55 @@ COLMAP's incremental mapper starts from an existing reconstruction when given on
 (``incremental_mapping(..., input_path=...)``): it registers the database's other images into it,
 triangulates and bundle-adjusts. The reconstruction must speak the database's ids, and a photo
 added to the folder shifts them (ids follow the names' order), so :func:`start_model` rewrites the
-previous model with the current ids: same cameras, poses, keypoints and tracks. The mapper then
-normalises the model's scale and position while it grows; :func:`align_to_previous` puts the
-result back in the previous model's frame, fitted on the photos both models registered, so every
-output made in that frame (levelled, or georeferenced) stays in it.
+previous model with the current ids: same cameras, poses, keypoints and tracks.
+
+:func:`continue_model` keeps the previous photos' poses fixed (``fix_existing_frames``): the
+previous model had its final robust bundle adjustment already, and the new photos are adjusted
+against it (the mapper's local and global BA; cameras' intrinsics still refined), with no final BA
+over the whole model. Measured on temple_ring, 40 photos then 7 added (loaded machine): the
+continuation took 12.5 s against 32.5 s with the previous poses free and the final BA, AUC@5 91.7
+against 90.7 (90.3 from scratch); the previous photos stay exactly where they were, so their depth
+maps stay valid (:mod:`recon.mvs.reuse`). A model the mapper builds apart
+from the previous one (new photos that join none) gets the final BA as from scratch.
+:func:`align_to_previous` still fits the result onto the previous model's frame on the photos
+both registered (the identity, when the mapper kept them fixed), so every output made in that frame
+(levelled, or georeferenced) stays in it.
 """
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from recon.geometry.transforms import align_similarity
-from recon.sparse.database import read_only
+from recon.sparse import mapping
+from recon.sparse.database import private_copy, read_only
+
+
+def continue_model(database: Path, images: Path, cfg, seed: int, start) -> mapping.Mapping:
+    """The models of the incremental mapper continuing ``start`` (:func:`start_model`) with the
+    database's other photos, the previous photos' poses fixed (module doc); largest first."""
+    import pycolmap
+
+    opts = mapping.incremental_options(cfg, seed)
+    opts.fix_existing_frames = True
+    pycolmap.set_random_seed(seed)
+    with tempfile.TemporaryDirectory(prefix="recon-sfm-") as scratch, private_copy(database) as copy:
+        given, made = Path(scratch) / "start", Path(scratch) / "models"
+        given.mkdir()
+        made.mkdir()
+        start.write(str(given))
+        models = pycolmap.incremental_mapping(str(copy), str(images), str(made), opts, input_path=str(given))
+    previous = {image.name for image in start.images.values()}
+    ordered = sorted(models.values(), key=lambda r: (-r.num_reg_images(), -r.num_points3D()))
+    if cfg.final_ba_iterations:
+        ordered = [rec if previous & {i.name for i in rec.images.values()} else
+                   mapping.final_bundle_adjustment(rec, cfg) for rec in ordered]
+    attempt = mapping.Attempt.of("incremental", ordered)
+    return mapping.Mapping(ordered, "incremental", "continued the previous model (its photos' poses fixed)",
+                           [attempt])
 
 
 def start_model(previous, image_ids: dict[str, int], camera_ids: dict[str, int]):

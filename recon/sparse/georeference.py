@@ -1,25 +1,37 @@
 """Models in metres on the Earth: each model's camera centres aligned to its photos' GPS positions,
 the model then transformed into one local East-North-Up frame (metres, origin at the photos'
-median GPS position), which every later stage reads.
+median GPS position), which every later stage reads. Ground control points move the first model
+onto their surveyed positions (jointly with the GPS photos that agree); scale bars scale it
+(:func:`place`; README, "Metric scale and ground control").
 
-The content of ``georeference.json`` is built here; its keys are documented in :func:`georeference`.
+The content of ``georeference.json`` is built here; its keys are documented in :func:`georeference`
+and :func:`place`.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from recon.geometry.georef import CHI3_99, Alignment, GeorefError, align_to_gps
+from recon.geometry.gcp import GcpList, to_wgs84
+from recon.geometry.georef import CHI3_99, Alignment, GeorefError, align_to_control, align_to_gps
 from recon.geometry.gps import enu_from_wgs84, wgs84_from_enu
+from recon.geometry.scale import fit_scale
+from recon.geometry.transforms import Similarity
+from recon.sparse.control import ControlError, ScaleBar, triangulate
 
 log = logging.getLogger(__name__)
 
 #: GPS accuracy (metres) of a photo that states none: a phone or camera GPS in the open
 DEFAULT_GPS_SIGMA = 5.0
 CRS = "local ENU: x east, y north, z up, metres, in the plane tangent to the WGS84 ellipsoid at the origin"
+GCP_LOCAL_CRS = "the GCP file's local frame (ENU: x east, y north, z up, metres), not tied to the Earth"
+#: how far (metres) a GCP triangulated in a model may be from its surveyed position: survey, clicking and
+#: model error together; a GCP beyond CHI3_99 of these is left out of the fit
+DEFAULT_GCP_SIGMA = 0.1
 ALTITUDE_NOTE = ("EXIF GPSAltitude (above mean sea level) is used as the WGS84 ellipsoid height: heights in "
                  "the frame are right relative to each other, the origin's altitude is off by the geoid height")
 
@@ -80,7 +92,7 @@ def georeference(models: list, gps: dict[str, dict], *, sigma: float = 0.0, seed
         fit = _align(main, gps, origin, sigma, seed)
     except GeorefError as exc:
         return {"georeferenced": False, "reason": f"GPS cannot place the model: {exc}"}
-    _transform(main, fit.alignment)
+    _transform(main, fit.alignment.similarity)
     result = {
         "georeferenced": True,
         "crs": CRS,
@@ -113,19 +125,16 @@ def _align(model, gps: dict[str, dict], origin, sigma: float, seed: int) -> _Fit
     return _Fit(names, enu, alignment)
 
 
-def _transform(model, alignment: Alignment) -> None:
+def _transform(model, sim: Similarity) -> None:
     import pycolmap
 
-    sim = alignment.similarity
     model.transform(pycolmap.Sim3d(sim.s, pycolmap.Rotation3d(sim.R), sim.t))
 
 
 def _summary(fit: _Fit, sigma: float) -> dict:
     alignment = fit.alignment
-    sim = alignment.similarity
     return {
-        "model_to_enu": {"scale": sim.s, "rotation": sim.R.tolist(), "translation": sim.t.tolist(),
-                         "maps": "x_enu = scale * rotation @ x_model + translation (x_model: the mapper's frame)"},
+        "model_to_enu": _similarity_record(alignment.similarity),
         "residuals_m": {"median": alignment.median, "p90": alignment.p90,
                         "what": "distance between each inlier photo's camera centre and its GPS position"},
         # None with fewer than 4 inliers: a bootstrap over 3 photos says nothing
@@ -150,5 +159,186 @@ def _georeference_other(model, gps, origin, sigma: float, seed: int) -> dict:
         fit = _align(model, gps, origin, sigma, seed)
     except GeorefError as exc:
         return {"georeferenced": False, "reason": str(exc)}
-    _transform(model, fit.alignment)
+    _transform(model, fit.alignment.similarity)
     return {"georeferenced": True, **_summary(fit, sigma)}
+
+
+def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed: int = 0,
+          gcps: GcpList | None = None, gcp_sigma: float = DEFAULT_GCP_SIGMA,
+          scale_bars: Sequence[ScaleBar] = ()) -> dict:
+    """Put ``models`` (largest first) in metres, in place, from what the user has: the photos' GPS
+    (``gps``; None: not used), ground control points (``gcps``, the first model), scale bars (the
+    first model); returns georeference.json, whose ``scale_source`` says which fixed the scale
+    ("GCP", "scale bar", "GPS" or "none").
+
+    GCPs, far more accurate than phone or drone GPS, move the model to them, jointly with the GPS
+    photos that agree (weights 1 / sigma^2); scale bars then only check the result. Without GCPs,
+    scale bars set the scale: about the GPS photos' centroid when GPS placed the model (the
+    position and rotation GPS fixed stay), about the origin otherwise. Raises
+    :class:`recon.sparse.control.ControlError` for marked points that cannot be used, its message
+    starting with the option at fault (``gcp_file: ...``, ``scale_bars[0].a: ...``).
+
+    Keys beyond :func:`georeference`'s: ``scale_source``; ``gcp`` (per GCP its residual and
+    leave-one-out check in metres, outliers, GCPs not used and why); ``scale_bars`` (per bar its
+    length and its length in the model); ``model_scale`` (the scale applied to a model that stays
+    in the mapper's frame); ``gps`` (why GPS was not used when GCPs placed the model).
+    """
+    if gps is None:
+        result = {"georeferenced": False, "reason": "sfm.georeference is off"}
+    elif not gps:
+        result = {"georeferenced": False, "reason": "no photo has a GPS position with altitude in its EXIF"}
+    else:
+        result = georeference(models, gps, sigma=sigma, seed=seed)
+    result["scale_source"] = "GPS" if result["georeferenced"] else "none"
+    if models and gcps is not None:
+        _apply_gcps(models[0], result, gcps, gcp_sigma)
+    if models and scale_bars:
+        _apply_scale_bars(models[0], result, scale_bars)
+    return result
+
+
+def _apply_gcps(model, result: dict, gcps: GcpList, gcp_sigma: float) -> None:
+    """Triangulate the GCPs in ``model`` and move it onto them (with the GPS photos that agree, when
+    GPS placed it and the GCPs are on the Earth); the ``gcp`` record and the frame in ``result``."""
+    seen, unused = [], {}
+    for point in gcps.points:
+        try:
+            seen.append((point, triangulate(model, [(o.image, o.x, o.y) for o in point.observations])))
+        except ControlError as exc:
+            unused[point.name] = str(exc)
+    with_gps = result["georeferenced"] and not gcps.local
+    if gcps.local:
+        origin, targets = None, np.array([p.position for p, _ in seen]).reshape(-1, 3)
+    else:
+        lla = to_wgs84(gcps.crs, np.array([p.position for p in gcps.points]))
+        origin = (tuple(result["origin"][k] for k in ("lat", "lon", "alt")) if with_gps else
+                  median_origin([dict(zip(("lat", "lon", "alt"), row)) for row in lla]))
+        by_name = dict(zip((p.name for p in gcps.points), lla))
+        targets = enu_from_wgs84(np.array([by_name[p.name] for p, _ in seen]).reshape(-1, 3), origin)
+    anchors = _gps_anchors(model, result) if with_gps else None
+    points = np.array([t.xyz for _, t in seen]).reshape(-1, 3)
+    try:
+        fit = align_to_control(points, targets, gcp_sigma, anchors)
+    except GeorefError as exc:
+        why = "; ".join(f"{name}: {reason}" for name, reason in unused.items())
+        raise ControlError(f"gcp_file: the GCPs cannot place the model: {exc}" +
+                           (f" (not used: {why})" if why else "")) from None
+    _transform(model, fit.similarity)
+    before = _model_to_frame(result) if with_gps else None
+    after = fit.similarity if before is None else _compose(fit.similarity, before)
+    if with_gps:
+        _refresh_photos(model, result)
+    else:
+        gps_note = ("not used: the GCPs are in a local frame" if result["georeferenced"] else
+                    f"not used: {result.pop('reason')}")
+        for key in ("residuals_m", "inliers", "inlier_threshold", "position_std_m", "without_gps", "outliers"):
+            result.pop(key, None)
+        result.update({"georeferenced": True, "gps": gps_note, "photos": []})
+    result.update({
+        "crs": GCP_LOCAL_CRS if gcps.local else CRS,
+        "origin": None if origin is None else dict(zip(("lat", "lon", "alt"), origin)),
+        "model_to_enu": _similarity_record(after),
+        "scale_source": "GCP",
+        "scale_relative_std": None if np.isnan(fit.scale_std) else fit.scale_std,
+        "gcp": _gcp_record(gcps, seen, targets, fit, gcp_sigma, unused, with_gps),
+    })
+    if not gcps.local:
+        result["altitude"] = ALTITUDE_NOTE
+
+
+def _gps_anchors(model, result: dict):
+    """The GPS inlier photos as (camera centres, GPS ENU, sigma) for a joint fit."""
+    inliers = [p for p in result["photos"] if p["inlier"]]
+    centres = _centres(model)
+    return (np.array([centres[p["name"]] for p in inliers]), np.array([p["gps_enu"] for p in inliers]),
+            np.array([p["sigma_m"] for p in inliers]))
+
+
+def _centres(model) -> dict[str, np.ndarray]:
+    return {model.image(i).name: model.image(i).projection_center() for i in model.reg_image_ids()}
+
+
+def _refresh_photos(model, result: dict) -> None:
+    """The GPS photos' camera positions and residuals after the model moved again."""
+    centres = _centres(model)
+    for photo in result["photos"]:
+        photo["camera_enu"] = centres[photo["name"]].tolist()
+        photo["residual_m"] = float(np.linalg.norm(centres[photo["name"]] - np.asarray(photo["gps_enu"])))
+    residuals = [p["residual_m"] for p in result["photos"] if p["inlier"]]
+    result["residuals_m"].update(median=float(np.median(residuals)), p90=float(np.percentile(residuals, 90)))
+
+
+def _gcp_record(gcps: GcpList, seen, targets, fit, gcp_sigma: float, unused: dict, with_gps: bool) -> dict:
+    points = []
+    for k, (point, tri) in enumerate(seen):
+        points.append({
+            "name": point.name, "position": point.position.tolist(), "target_enu": targets[k].tolist(),
+            "model_enu": (targets[k] + fit.residuals[k]).tolist(), "residual_enu": fit.residuals[k].tolist(),
+            "residual_m": float(np.linalg.norm(fit.residuals[k])),
+            "check_m": None if np.isnan(fit.checks[k]) else float(fit.checks[k]),
+            "inlier": bool(fit.inliers[k]), "photos": tri.photos,
+            "reprojection_px": float(tri.reprojection_px.max()), "unregistered_photos": tri.unregistered})
+    used = [p["residual_m"] for p in points if p["inlier"]]
+    checks = [p["check_m"] for p in points if p["inlier"] and p["check_m"] is not None]
+    return {
+        "crs": gcps.crs, "sigma_m": gcp_sigma, "with_gps": with_gps,
+        "inlier_threshold_m": CHI3_99 * gcp_sigma,
+        "rms_m": float(np.sqrt(np.mean(np.square(used)))),
+        "check_rms_m": float(np.sqrt(np.mean(np.square(checks)))) if checks else None,
+        "what": "residual_m: distance between a GCP's surveyed position and its triangulation in the fitted "
+                "model; check_m: the same in a fit without that GCP (an independent check)",
+        "points": points, "outliers": [p["name"] for p in points if not p["inlier"]],
+        "not_used": unused,
+    }
+
+
+def _apply_scale_bars(model, result: dict, bars: Sequence[ScaleBar]) -> None:
+    """Measure each bar in ``model``; unless GCPs fixed the scale, scale the model so the bars have
+    their lengths. The ``scale_bars`` record in ``result``."""
+    ends = []
+    for k, bar in enumerate(bars):
+        if bar.length <= 0:
+            raise ControlError(f"scale_bars[{k}].length: give the bar's length in metres")
+        pair = []
+        for end, marks in (("a", bar.a), ("b", bar.b)):
+            try:
+                pair.append(triangulate(model, [(m.photo, m.x, m.y) for m in marks]))
+            except ControlError as exc:
+                raise ControlError(f"scale_bars[{k}].{end}: {exc}") from None
+        ends.append(pair)
+    measured = np.array([np.linalg.norm(a.xyz - b.xyz) for a, b in ends])
+    lengths = np.array([bar.length for bar in bars])
+    if result["scale_source"] != "GCP":
+        fit = fit_scale(measured, lengths)
+        centre = (np.mean([p["camera_enu"] for p in result["photos"] if p["inlier"]], axis=0)
+                  if result["georeferenced"] else np.zeros(3))
+        step = Similarity(fit.scale, np.eye(3), (1 - fit.scale) * centre)
+        _transform(model, step)
+        measured = measured * fit.scale
+        if result["georeferenced"]:
+            result["model_to_enu"] = _similarity_record(_compose(step, _model_to_frame(result)))
+            _refresh_photos(model, result)
+        else:
+            result["model_scale"] = {"scale": fit.scale, "maps": "x = scale * x_model (about the origin)"}
+        result["scale_source"] = "scale bar"
+        result["scale_relative_std"] = None if np.isnan(fit.relative_std) else fit.relative_std
+    result["scale_bars"] = [
+        {"length_m": float(bar.length), "model_length_m": float(d), "error_m": float(d - bar.length),
+         "reprojection_px": float(max(a.reprojection_px.max(), b.reprojection_px.max())),
+         "photos": sorted(set(a.photos) | set(b.photos))}
+        for bar, d, (a, b) in zip(bars, measured, ends)]
+
+
+def _similarity_record(sim: Similarity) -> dict:
+    return {"scale": sim.s, "rotation": np.asarray(sim.R).tolist(), "translation": np.asarray(sim.t).tolist(),
+            "maps": "x_enu = scale * rotation @ x_model + translation (x_model: the mapper's frame)"}
+
+
+def _model_to_frame(result: dict) -> Similarity:
+    record = result["model_to_enu"]
+    return Similarity(record["scale"], np.asarray(record["rotation"]), np.asarray(record["translation"]))
+
+
+def _compose(second: Similarity, first: Similarity) -> Similarity:
+    """``second`` after ``first``."""
+    return Similarity(second.s * first.s, second.R @ first.R, second.s * second.R @ first.t + second.t)

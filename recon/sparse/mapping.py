@@ -4,19 +4,120 @@ from __future__ import annotations
 
 import logging
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from recon.sparse.database import image_ids, private_copy, read_only
+from recon.sparse.database import image_ids, opened, private_copy, read_only
 
 log = logging.getLogger(__name__)
 
 
-def reconstruct(database: Path, images: Path, cfg, seed: int, start=None) -> list:
-    """All models the mapper builds, largest first (``cfg`` is the sfm stage's config). ``start``: a
-    model in the database's ids (:func:`recon.sparse.continuation.start_model`) that the incremental
-    mapper continues, registering the other photos into it."""
+#: the incremental mapper falls short when its largest model holds fewer than this share of the photos
+#: (or the photos split into several models); the global mapper is then run too
+FALLBACK_MIN_SHARE = 0.95
+#: a model is sound when its mean reprojection error (after the final BA) is at most this, pixels:
+#: SIFT models are at 0.2-1 px (temple_ring 0.6, the walk-around zoo scene 0.2-0.3)
+MAX_SOUND_REPROJ_ERROR = 2.0
+#: ... and it holds at least this many points: COLMAP's global mapper, given three photos with 16-30
+#: inliers a pair (no pair can start the incremental mapper), returned a "model" of 4 points at 0.0 px.
+#: The incremental mapper needs 100 verified inliers to start a model; a kept model needs as many points
+MIN_SOUND_POINTS = 100
+#: fewer photos than this share in the largest model ends sfm with a warning (:func:`left_out_warning`)
+WARN_REGISTERED_SHARE = 0.75
+
+
+@dataclass(frozen=True)
+class Attempt:
+    """What one mapper made: photos in its largest model, how many models, that model's mean
+    reprojection error (pixels; None without a model) and its 3D points."""
+
+    mapper: str
+    registered: int
+    models: int
+    mean_reproj_error: float | None
+    points: int = 0
+
+    @staticmethod
+    def of(mapper: str, models: list) -> Attempt:
+        if not models:
+            return Attempt(mapper, 0, 0, None)
+        best = models[0]
+        return Attempt(mapper, best.num_reg_images(), len(models), best.compute_mean_reprojection_error(),
+                       best.num_points3D())
+
+    def describe(self, photos: int) -> str:
+        if not self.models:
+            return f"the {self.mapper} mapper built no model"
+        split = f", the rest split into {self.models - 1} more" if self.models > 1 else ""
+        return f"the {self.mapper} mapper's largest model holds {self.registered} of {photos} photos{split}"
+
+
+@dataclass
+class Mapping:
+    """The models kept (largest first), the mapper that made them and why that one, and what each
+    mapper run made."""
+
+    models: list
+    mapper: str
+    why: str
+    attempts: list[Attempt]
+
+
+def reconstruct(database: Path, images: Path, cfg, seed: int, start=None) -> Mapping:
+    """All models the mapper ``cfg.mapper`` builds, largest first (``cfg`` is the sfm stage's config),
+    each refined by :func:`final_bundle_adjustment`. ``start``: a model in the database's ids
+    (:func:`recon.sparse.continuation.start_model`) that the incremental mapper continues.
+
+    With ``cfg.mapper_fallback``, where the incremental mapper falls short (:func:`shortfall`), the
+    global mapper runs too and the result that registers more photos at a sound reprojection error
+    is kept (:func:`choose`): on a walk round a building, photos past a corner share too few matches
+    with the model for the incremental mapper to register them (a model per facade), while the
+    global mapper, which needs only each pair's geometry, joins them."""
+    with read_only(database) as db:
+        photos = len(image_ids(db))
+    models = _map(cfg.mapper, database, images, cfg, seed, start)
+    first = Attempt.of(cfg.mapper, models)
+    short = shortfall(first, photos) if cfg.mapper == "incremental" else None
+    if short is None or not cfg.mapper_fallback:
+        why = f"sfm.mapper is {cfg.mapper}" + (f" ({short}; sfm.mapper_fallback is off)" if short else "")
+        return Mapping(models, cfg.mapper, why, [first])
+    log.info("sfm: %s: running the global mapper too", short)
+    fallback = _map("global", database, images, cfg, seed)
+    second = Attempt.of("global", fallback)
+    mapper, why = choose(first, second, photos)
+    log.info("sfm: %s model kept: %s", mapper, why)
+    return Mapping(fallback if mapper == "global" else models, mapper, why, [first, second])
+
+
+def shortfall(attempt: Attempt, photos: int) -> str | None:
+    """Why the incremental mapper's result falls short (its largest model holds under
+    :data:`FALLBACK_MIN_SHARE` of the photos, or the photos split into several models), or None."""
+    if attempt.models == 1 and attempt.registered >= FALLBACK_MIN_SHARE * photos:
+        return None
+    return attempt.describe(photos)
+
+
+def choose(incremental: Attempt, fallback: Attempt, photos: int) -> tuple[str, str]:
+    """The mapper whose models are kept after the fallback ran, and why: the global mapper's where its
+    largest model registers more photos at a mean reprojection error up to
+    :data:`MAX_SOUND_REPROJ_ERROR` with :data:`MIN_SOUND_POINTS` points, else the incremental mapper's."""
+    short = incremental.describe(photos)
+    if not fallback.models:
+        return "incremental", f"{short}; the global mapper built no model"
+    if fallback.mean_reproj_error > MAX_SOUND_REPROJ_ERROR:
+        return "incremental", (f"{short}; the global mapper's model has a mean reprojection error of "
+                               f"{fallback.mean_reproj_error:.2f} px (over {MAX_SOUND_REPROJ_ERROR:g} px: unsound)")
+    if fallback.points < MIN_SOUND_POINTS:
+        return "incremental", (f"{short}; the global mapper's model has {fallback.points} points "
+                               f"(under {MIN_SOUND_POINTS}: unsound)")
+    if fallback.registered <= incremental.registered:
+        return "incremental", f"{short}; the global mapper's largest model holds no more ({fallback.registered})"
+    return "global", f"{short}; {fallback.describe(photos)}"
+
+
+def _map(mapper: str, database: Path, images: Path, cfg, seed: int, start=None) -> list:
     import pycolmap
 
     pycolmap.set_random_seed(seed)
@@ -28,7 +129,7 @@ def reconstruct(database: Path, images: Path, cfg, seed: int, start=None) -> lis
             start.write(start_path)
             scratch = str(Path(scratch) / "models")
             Path(scratch).mkdir()
-        if cfg.mapper == "global":
+        if mapper == "global":
             opts = pycolmap.GlobalPipelineOptions()
             opts.min_num_matches = cfg.min_num_matches
             opts.min_model_size = cfg.min_model_size
@@ -43,6 +144,19 @@ def reconstruct(database: Path, images: Path, cfg, seed: int, start=None) -> lis
     if cfg.final_ba_iterations:
         ordered = [final_bundle_adjustment(rec, cfg) for rec in ordered]
     return ordered
+
+
+def left_out_warning(registered: int, photos: int, mapping: Mapping) -> str | None:
+    """A warning when the largest model leaves out more than a quarter of the photos: how many, and
+    what to try (the global mapper only where it was not tried), or None."""
+    if registered >= WARN_REGISTERED_SHARE * photos:
+        return None
+    tips = ["take more photos, with more overlap between neighbours (round corners especially)",
+            "extract more features (features.max_num_features, features.max_image_size)"]
+    tried = {a.mapper for a in mapping.attempts}
+    tips += [f"sfm.mapper: {other}" for other in ("global", "incremental") if other not in tried]
+    return (f"only {registered} of {photos} photos are in the largest model ({photos - registered} left out); "
+            f"later stages use that model alone. Try: " + "; ".join(tips))
 
 
 def incremental_options(cfg, seed: int):
@@ -126,7 +240,8 @@ def _bundle_adjust(rec, cfg, principal_point: bool) -> None:
     pycolmap.bundle_adjustment(rec, opts)
 
 
-def registration_report(database: Path, models: list, min_matches: int, init_min_tri_angle: float = 16.0) -> dict:
+def registration_report(database: Path, models: list, min_matches: int, init_min_tri_angle: float = 16.0,
+                        min_model_size: int = 3) -> dict:
     """Per model: registered photos; per unregistered photo: the reason, from its verified matches;
     with no model, ``reason``: what the database shows about why (:func:`_no_model_reason`)."""
     import pycolmap
@@ -158,19 +273,26 @@ def registration_report(database: Path, models: list, min_matches: int, init_min
             unregistered[name] = (f"registration failed: {len(partners[image_id])} matched photo(s), best "
                                   f"{best} inliers, but too few 2D-3D correspondences to the model")
     matched = sum(1 for v in partners.values() if v)
+    reason = ""
+    if not models:
+        reason = (_no_start_measured(database, geometries, len(names), init_min_tri_angle, min_model_size)
+                  or _no_model_reason(len(names), matched, geometries, cameras, min_matches, init_min_tri_angle))
     return {
         "total_images": len(names),
         "models": [{"registered": rec.num_reg_images(), "points": rec.num_points3D(),
                     "mean_reproj_error": rec.compute_mean_reprojection_error()} for rec in models],
         "unregistered": unregistered,
-        "reason": "" if models else _no_model_reason(len(names), matched, geometries, cameras, min_matches,
-                                                     init_min_tri_angle),
+        "reason": reason,
     }
 
 
 #: COLMAP's incremental mapper starts from a pair with at least this many verified inliers
 #: (IncrementalMapperOptions.init_min_num_inliers)
 INIT_MIN_INLIERS = 100
+#: ... whose second camera moves less than this along the first's viewing axis (init_max_forward_motion)
+INIT_MAX_FORWARD_MOTION = 0.95
+#: strong pairs whose two-view pose is estimated to tell why no model was built (each takes milliseconds)
+MAX_START_PAIRS_CHECKED = 50
 
 
 def _no_model_reason(photos: int, matched: int, geometries: list, cameras: list, min_matches: int,
@@ -216,6 +338,46 @@ def _no_model_reason(photos: int, matched: int, geometries: list, cameras: list,
     return (f"No initial pair: {len(strong)} pair(s) have the {INIT_MIN_INLIERS}+ verified inliers the mapper needs "
             f"to start, but none of them gave a first two-view model with a {init_min_tri_angle:g} degree "
             f"triangulation angle. Likely causes: " + "; ".join(causes) + ".")
+
+
+def _no_start_measured(database: Path, geometries: list, photos: int, init_min_tri_angle: float,
+                       min_model_size: int) -> str | None:
+    """Why no model, where the strong pairs show the mapper could start: it estimates each pair's
+    two-view pose as COLMAP's mapper does to start (:data:`INIT_MIN_INLIERS` inliers, less than
+    :data:`INIT_MAX_FORWARD_MOTION` forward motion, ``init_min_tri_angle``). A pair that passes made a
+    first two-view model, so what failed is that no model grew to ``min_model_size`` photos; None where
+    no pair passes (the start itself failed: :func:`_no_model_reason`)."""
+    import pycolmap
+
+    strong = sorted(((n, pair_id) for pair_id, n, _ in geometries if n >= INIT_MIN_INLIERS), reverse=True)
+    if not strong:
+        return None
+    started = []
+    with private_copy(database) as copy, opened(copy) as db:
+        names = {image.image_id: image.name for image in db.read_all_images()}
+        for _, pair_id in strong[:MAX_START_PAIRS_CHECKED]:
+            a, b = pycolmap.pair_id_to_image_pair(pair_id)
+            geometry = db.read_two_view_geometry(a, b)
+            ka, kb = (np.asarray(db.read_keypoints(i), np.float64) for i in (a, b))
+            if ka.ndim != 2 or kb.ndim != 2 or (geometry.inlier_matches.max(0) >= [len(ka), len(kb)]).any():
+                continue  # no keypoints stored for these inliers: nothing to measure
+            ok = pycolmap.estimate_two_view_geometry_pose(
+                db.read_camera(db.read_image(a).camera_id), ka[:, :2].copy(),
+                db.read_camera(db.read_image(b).camera_id), kb[:, :2].copy(), geometry)
+            if ok and len(geometry.inlier_matches) >= INIT_MIN_INLIERS \
+                    and abs(geometry.cam2_from_cam1.translation[2]) < INIT_MAX_FORWARD_MOTION \
+                    and np.degrees(geometry.tri_angle) > init_min_tri_angle:
+                started.append((names[a], names[b], float(np.degrees(geometry.tri_angle))))
+    if not started:
+        return None
+    a, b, angle = started[0]
+    if photos < min_model_size:
+        return (f"Only {photos} photos: the mapper can start from {a} and {b} ({angle:.0f} degree triangulation "
+                f"angle), but a model needs sfm.min_model_size ({min_model_size}) photos; add photos or lower it")
+    return (f"No model grew to sfm.min_model_size ({min_model_size}) photos: {len(started)} of the strongest pairs "
+            f"could start one (e.g. {a} and {b}, {angle:.0f} degree triangulation angle), but no other photo shared "
+            "enough points with them to register (sfm.abs_pose_min_num_inliers 2D-3D matches); take photos with "
+            "more overlap, extract more features, or try sfm.mapper: global")
 
 
 def _starting_fov(cameras: list) -> tuple[str, int]:

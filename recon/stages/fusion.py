@@ -21,6 +21,9 @@ class FusionConfig:
     deterministic: bool = opt(True, "single-threaded fusion: the same points from the same depth maps. "
                                     "Multi-threaded, COLMAP merges pixels in the order its threads reach them "
                                     "and the cloud differs between runs (~0.1 % of the points)")
+    keep_visibility: bool = opt(False, "keep COLMAP's fused.ply.vis (the views that saw each point, which COLMAP's "
+                                       "Delaunay mesher reads); no recon stage reads it, and it is as large as "
+                                       "the cloud")
 
 
 @register
@@ -51,7 +54,13 @@ class Fusion(Stage):
         opts.max_normal_error = cfg.max_normal_error
         opts.num_threads = 1 if cfg.deterministic else -1
         with atomic(ctx.output.path) as tmp:
-            pycolmap.stereo_fusion(str(tmp), str(scratch), options=opts, output_type="PLY")
+            visibility = tmp.with_name(tmp.name + ".vis")  # COLMAP writes it beside the PLY
+            try:
+                pycolmap.stereo_fusion(str(tmp), str(scratch), options=opts, output_type="PLY")
+                if cfg.keep_visibility and visibility.exists():
+                    visibility.replace(ctx.output.visibility)
+            finally:
+                visibility.unlink(missing_ok=True)
             points = _vertex_count(tmp)
             if points == 0:  # (trimesh reads an empty PLY as an empty scene, with no vertices)
                 raise StageError("fusion: no point was seen consistently by enough views (too few registered "

@@ -30,7 +30,7 @@ class IngestConfig:
     camera_model: Literal["auto", "SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV",
                           "SIMPLE_FISHEYE", "FISHEYE", "SIMPLE_RADIAL_FISHEYE", "RADIAL_FISHEYE", "OPENCV_FISHEYE",
                           "EQUIRECTANGULAR"] = opt(
-        "SIMPLE_RADIAL", "COLMAP camera model fitted by bundle adjustment; auto: by the photos' metadata "
+        "auto", "COLMAP camera model fitted by bundle adjustment; auto: by the photos' metadata "
                          "(fisheye lens: OPENCV_FISHEYE, 360 panorama: EQUIRECTANGULAR, else SIMPLE_RADIAL)")
     default_focal_factor: float = opt(1.2, "focal = factor x max(width, height) when EXIF has none", gt=0)
     min_photos: int = opt(2, "fewest readable photos the run needs (2 to reconstruct; localize takes 1)", ge=1)

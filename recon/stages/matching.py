@@ -11,26 +11,38 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
 from recon.items import ItemStore, item_key
 from recon.options import opt
 from recon.products import FeatureDatabase, MatchDatabase
 from recon.sparse import pairs as pairing
 from recon.sparse.database import image_ids, opened, read_camera, read_descriptors, read_only
+from recon.sparse.georeference import gps_sigma
 from recon.sparse.matcher import Block, BlockError, PairOptions, match_block, read_block, write_block
 from recon.stage import Stage, StageContext, register
+
+#: auto: the least share of photos with a GPS tag for spatial matching
+AUTO_SPATIAL_SHARE = 0.8
 
 
 @dataclass(frozen=True)
 class MatchingConfig:
-    method: Literal["auto", "exhaustive", "sequential", "retrieval"] = opt(
+    method: Literal["auto", "exhaustive", "sequential", "retrieval", "spatial"] = opt(
         "auto", "pair selection; auto = sequential for video frames, else exhaustive up to `exhaustive_max` "
-                "photos, else retrieval")
+                "photos, else spatial when 80 % of the photos have GPS and lie farther from their "
+                "`spatial_neighbors`th nearest than twice its accuracy, else retrieval")
     exhaustive_max: int = opt(40, "auto: largest photo count matched exhaustively", ge=2)
     overlap: int = opt(10, "sequential: match each frame with this many following frames", ge=1)
     loop_detection: bool = opt(True, "sequential: also match frames that look alike (loop closure)")
     loop_neighbors: int = opt(5, "sequential: loop-closure candidates per frame", ge=0)
     neighbors: int = opt(15, "retrieval: most similar photos matched with each photo", ge=1)
     vocabulary_words: int = opt(64, "retrieval: words of the VLAD vocabulary learned from the photos", ge=8)
+    spatial_neighbors: int = opt(12, "spatial: nearest photos by GPS position matched with each photo", ge=1)
+    spatial_max_distance: float = opt(0.0, "spatial: farthest GPS distance of a pair, metres (0: no limit)",
+                                      ge=0)
+    spatial_retrieval: int = opt(3, "spatial: most similar photos (by appearance) also matched with each photo; "
+                                    "a photo without GPS gets `neighbors` of them", ge=0)
     max_ratio: float = opt(0.8, "Lowe's ratio test threshold", gt=0, le=1)
     max_distance: float = opt(0.7, "largest descriptor distance of a match", gt=0, le=1)
     cross_check: bool = opt(True, "keep only mutual best matches")
@@ -48,24 +60,53 @@ def pair_options(cfg: MatchingConfig, seed: int, num_threads: int = 1) -> PairOp
 
 
 def choose_pairs(cfg: MatchingConfig, database: Path, names: list[str], seed: int,
-                 ordered: bool = False) -> tuple[str, list]:
-    """The method actually used and the pairs (indices into ``names``) to match.
+                 listing: dict) -> tuple[str, str, list]:
+    """The method actually used, why (for ``auto``) and the pairs (indices into ``names``) to match.
 
-    ``ordered``: the images are frames in capture order (a video), so ``auto`` matches sequentially.
+    ``listing``: ingest's photo listing, for the photos' GPS tags and whether they are frames in
+    capture order (a video: ``auto`` matches sequentially).
     """
     n = len(names)
-    method = cfg.method
+    images = listing.get("images", [])
+    positions = pairing.gps_positions(images, names)
+    method, why = cfg.method, ""
     if method == "auto":
-        method = "sequential" if ordered else "exhaustive" if n <= cfg.exhaustive_max else "retrieval"
+        method, why = auto_method(cfg, n, bool(listing.get("ordered")), positions, images)
     if method == "exhaustive":
-        return method, pairing.exhaustive_pairs(n)
+        return method, why, pairing.exhaustive_pairs(n)
+    if method == "spatial":
+        needs_similarity = cfg.spatial_retrieval or not np.isfinite(positions).all()
+        similarity = image_similarity(database, names, cfg.vocabulary_words, seed) if needs_similarity else None
+        return method, why, pairing.spatial_matching_pairs(positions, similarity, cfg.spatial_neighbors,
+                                                           cfg.spatial_max_distance, cfg.neighbors,
+                                                           cfg.spatial_retrieval)
     similarity = image_similarity(database, names, cfg.vocabulary_words, seed)
     if method == "retrieval":
-        return method, pairing.retrieval_pairs(similarity, cfg.neighbors)
+        return method, why, pairing.retrieval_pairs(similarity, cfg.neighbors)
     found = set(pairing.sequential_pairs(n, cfg.overlap))
     if cfg.loop_detection and cfg.loop_neighbors:
         found.update(pairing.loop_pairs(similarity, cfg.overlap, cfg.loop_neighbors))
-    return method, sorted(found)
+    return method, why, sorted(found)
+
+
+def auto_method(cfg: MatchingConfig, n: int, ordered: bool, positions: np.ndarray,
+                images: list[dict]) -> tuple[str, str]:
+    """``auto``'s method for ``n`` photos and why. Spatial needs GPS on most photos, and the photos it
+    would pair farther apart than their GPS accuracy (twice the median): around a small object, GPS
+    noise alone would decide which photos are "nearest"."""
+    if ordered:
+        return "sequential", "the photos are video frames"
+    if n <= cfg.exhaustive_max:
+        return "exhaustive", f"{n} photos, at most exhaustive_max = {cfg.exhaustive_max}"
+    tagged = int(np.isfinite(positions).all(axis=1).sum())
+    if tagged < AUTO_SPATIAL_SHARE * n:
+        return "retrieval", f"{tagged} of {n} photos have GPS (spatial needs {AUTO_SPATIAL_SHARE:.0%})"
+    spacing = pairing.neighbor_distance(positions, cfg.spatial_neighbors)
+    accuracy = float(np.median([gps_sigma(img["gps"], 0.0) for img in images if img.get("gps")]))
+    if spacing <= 2 * accuracy:
+        return "retrieval", (f"the photos' GPS positions are {spacing:.1f} m from their {cfg.spatial_neighbors}th "
+                             f"nearest, within twice their accuracy ({accuracy:.1f} m)")
+    return "spatial", f"{tagged} of {n} photos have GPS"
 
 
 def image_similarity(database: Path, names: list[str], words: int, seed: int):
@@ -93,8 +134,9 @@ class Matching(Stage):
         with read_only(features) as db:
             ids = image_ids(db)
         names = sorted(ids)
-        listing = upstream.listing()
-        method, pairs = choose_pairs(cfg, features, names, ctx.seed, bool(listing.get("ordered")))
+        method, why, pairs = choose_pairs(cfg, features, names, ctx.seed, upstream.listing())
+        if why:
+            ctx.log.info("matching: auto chose %s: %s", method, why)
         named = [(names[i], names[j]) for i, j in pairs]
         ctx.output.pairs.write_text("".join(f"{a} {b}\n" for a, b in named))
         id_pairs = [(ids[a], ids[b]) for a, b in named]
@@ -131,7 +173,7 @@ class Matching(Stage):
         upstream = ctx.input(FeatureDatabase)
         with read_only(upstream.database) as db:
             names = sorted(image_ids(db))
-        method, pairs = choose_pairs(cfg, upstream.database, names, ctx.seed, bool(upstream.listing().get("ordered")))
+        method, _, pairs = choose_pairs(cfg, upstream.database, names, ctx.seed, upstream.listing())
         keys = pair_keys(cfg, ctx.seed, upstream, [(names[i], names[j]) for i, j in pairs])
         store = ItemStore(ctx.workspace.items_dir(self.name), ".npz")
         return f"reuses {sum(store.get(k) is not None for k in keys)} of {len(keys)} pairs ({method})"

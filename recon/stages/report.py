@@ -48,7 +48,7 @@ class ReportConfig:
 @register
 class Report(Stage):
     name = "report"
-    version = 2
+    version = 3
     Config = ReportConfig
     requires = (MatchDatabase, SparseModel)
     optional = (DenseScene, DepthMaps, FusedCloud, SurfaceMesh, TexturedModel)
@@ -56,8 +56,11 @@ class Report(Stage):
     summary = "report.html: run summary, per-photo table, plots, depth maps, mesh figures, 3D viewer"
 
     def fingerprint(self, ctx: StageContext, cfg: ReportConfig):
-        """The optional outputs the report will show: the stages (and keys) that produced them."""
-        return {stage: key for stage, key, _ in _current_optional(ctx.workspace)}
+        """The optional outputs the report will show that this run does not make: the stages (and keys)
+        that produced them. Those this run plans are in the key already as upstream stages; counted
+        again here, they were absent when a first full run was planned and present at the next, so
+        an unchanged second run made the report again."""
+        return {stage: key for stage, key, _ in _current_optional(ctx.workspace) if stage not in ctx.upstream}
 
     def run(self, ctx: StageContext, cfg: ReportConfig) -> dict:
         from recon.report import Limits, Sources, build_report
@@ -70,6 +73,7 @@ class Report(Stage):
             database=ctx.input(MatchDatabase).database,
             model=sparse.model(),
             models_json=sparse.root / sparse.REPORT,
+            georeference=sparse.georeference,
             stages=[m for m in (ws.manifest(n, k) for n, k in _current_stages(ws) if n != self.name) if m],
             run_started=lock.stat().st_mtime if lock.exists() else None,
             config=ctx.settings,

@@ -1,5 +1,11 @@
 """sfm: camera poses and sparse points from verified matches (COLMAP's incremental or global mapper).
 
+Where the incremental mapper leaves photos out or splits them into several models, the global mapper
+runs too and the result registering more photos is kept (``mapper_fallback``,
+:func:`recon.sparse.mapping.reconstruct`); ``models.json`` and the summary say which mapper made the
+model and why. A largest model that leaves out more than a quarter of the photos ends the stage with a
+warning naming the count and what to try.
+
 Cameras come from the database (preprocess's intrinsics); when they are a calibration used as
 ``fixed`` (calibrate.use), bundle adjustment refines no intrinsics.
 
@@ -9,27 +15,36 @@ records the frame, the similarity applied and the GPS residuals.
 
 Photos added to a finished workspace: the newest earlier model made with the same options, whose
 photos are all still there with the same features, is continued instead of mapping every photo
-again (``continue_from_previous``, :mod:`recon.sparse.continuation`); the result is put back in
-that model's frame, so the outputs made from it stay where they were.
+again (``continue_from_previous``, :mod:`recon.sparse.continuation`): its photos' poses stay fixed
+while the new photos are registered and adjusted, and the result stays in that model's frame, so
+the outputs made from it stay where they were.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 from typing import Literal
 
 from recon.config import to_dict
 from recon.files import write_json
+from recon.geometry.gcp import GcpFileError, read_gcp_list
 from recon.options import opt, output_options
 from recon.products import FeatureDatabase, MatchDatabase, PreparedPhotos, SparseModel
 from recon.sparse import continuation, georeference, lens, mapping
+from recon.sparse.control import ControlError, ScaleBar
 from recon.sparse.frame import level_model
+from recon.sparse.georeference import DEFAULT_GCP_SIGMA
 from recon.stage import Stage, StageContext, StageError, producer, register
 
 
 @dataclass(frozen=True)
 class SfmConfig:
     mapper: Literal["incremental", "global"] = opt("incremental", "incremental (COLMAP) or global (GLOMAP) mapper")
+    mapper_fallback: bool = opt(
+        True, "incremental mapper: where its largest model holds under 95 % of the photos (or they split into "
+              "several models), also run the global mapper and keep its model if it registers more photos at a "
+              "mean reprojection error up to 2 px")
     min_num_matches: int = opt(15, "fewest verified matches for a pair to be used", ge=5)
     min_model_size: int = opt(3, "smallest model (registered photos) that is kept", ge=2)
     multiple_models: bool = opt(True, "keep reconstructing the photos left out of the first model")
@@ -53,16 +68,25 @@ class SfmConfig:
                 "up along +Z, scale and position as the mapper left them")
     gps_sigma: float = opt(0.0, "GPS accuracy in metres for every photo (0: each photo's GPSHPositioningError, "
                                 "else GPSDOP, else 5 m); a photo farther than 3.4 sigma is an outlier", ge=0)
+    gcp_file: str | None = opt(None, "ground control points: OpenDroneMap's gcp_list.txt (first line a CRS: EPSG:<code>, "
+                                     "WGS84, 'WGS84 UTM 32N', a PROJ string or ENU; then 'x y z px py photo [name]'), "
+                                     "relative to the config file; the model is moved onto them (with GPS, jointly)")
+    gcp_sigma: float = opt(DEFAULT_GCP_SIGMA,
+                           "how far a GCP found in the model may be from its surveyed position, metres: weighs GCPs "
+                           "against GPS; a GCP beyond 3.4 sigma after the fit is left out and named", gt=0)
+    scale_bars: list[ScaleBar] = opt([], "known distances between two points each marked in two photos or more "
+                                         "({length: metres, a: [{photo, x, y}, ...], b: [...]}): they set the "
+                                         "model's scale (without GCPs), or check it")
     continue_from_previous: bool = opt(
         True, "incremental mapper: when photos were added, continue the workspace's previous model (same sfm "
-              "options, all its photos still there with the same features) and keep its frame, instead of "
-              "mapping every photo again")
+              "options, all its photos still there with the same features; their poses kept fixed) and keep its "
+              "frame, instead of mapping every photo again")
 
 
 @register
 class Sfm(Stage):
     name = "sfm"
-    version = 4
+    version = 6
     Config = SfmConfig
     requires = (PreparedPhotos, FeatureDatabase, MatchDatabase)
     produces = SparseModel
@@ -83,8 +107,11 @@ class Sfm(Stage):
         if start is not None:
             ctx.log.info("sfm: continuing the previous model (%s, %d photos) with the new photos",
                          previous_key[:16], start.num_reg_images())
-        models = mapping.reconstruct(database, images, cfg, ctx.seed, start)
-        report = mapping.registration_report(database, models, cfg.min_num_matches, cfg.init_min_tri_angle)
+        made = (mapping.reconstruct(database, images, cfg, ctx.seed) if start is None
+                else continuation.continue_model(database, images, cfg, ctx.seed, start))
+        models = made.models
+        report = mapping.registration_report(database, models, cfg.min_num_matches, cfg.init_min_tri_angle,
+                                              cfg.min_model_size)
         if not models:
             raise StageError(f"sfm: no model could be built. {report['reason']}")
         kept = _keep_frame(ctx, models, previous) if start is not None else None
@@ -92,6 +119,10 @@ class Sfm(Stage):
         report["frame"] = _level(models, georef, kept)
         report["mapping"] = ({"continued_from": previous_key[:16], "previous_photos": start.num_reg_images()}
                              if start is not None else "from scratch")
+        report["mapper"] = {"used": made.mapper, "why": made.why, "attempts": [asdict(a) for a in made.attempts]}
+        left_out = mapping.left_out_warning(models[0].num_reg_images(), report["total_images"], made)
+        if left_out:
+            report["warning"] = left_out
         for k, rec in enumerate(models):
             path = ctx.output.model(k)
             path.mkdir(parents=True, exist_ok=True)
@@ -108,11 +139,18 @@ class Sfm(Stage):
         for camera in best.cameras.values():
             if (why := lens.pinhole_fit_warning(camera)) is not None:
                 ctx.log.warning("sfm: %s", why)
+        if left_out:
+            ctx.log.warning("sfm: %s", left_out)
         return {"models": len(models), "registered": best.num_reg_images(), "images": total,
                 "points": best.num_points3D(), "mean_reproj_error": round(best.compute_mean_reprojection_error(), 3),
-                "georeferenced": georef["georeferenced"],
+                "georeferenced": georef["georeferenced"], "mapper": made.mapper, "mapper_why": made.why,
                 "mapping": "continued" if start is not None else "from scratch",
                 **({"continued_from": previous_key[:16]} if start is not None else {})}
+
+    def fingerprint(self, ctx: StageContext, cfg: SfmConfig):
+        """The GCP file's content (sfm.gcp_file)."""
+        path = _gcp_file(ctx, cfg)
+        return None if path is None else [path.name, ctx.digest(path)]
 
     def reusable(self, ctx: StageContext, cfg: SfmConfig) -> str:
         previous, key = self.previous_model(ctx, cfg)
@@ -176,16 +214,35 @@ def _level(models: list, georef: dict, kept: dict | None = None) -> list[dict]:
     return frames
 
 
+def _gcp_file(ctx: StageContext, cfg: SfmConfig) -> Path | None:
+    if cfg.gcp_file is None:
+        return None
+    path = ctx.resolve(cfg.gcp_file)
+    if not path.is_file():
+        raise StageError(f"sfm.gcp_file: {path} is not a file; give an OpenDroneMap gcp_list.txt "
+                         "(format: README, 'Metric scale and ground control')")
+    return path
+
+
 def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[dict]) -> dict:
-    """Georeference the models in place (sfm.georeference) and log what was done; georeference.json."""
-    if cfg.georeference == "off":
-        return {"georeferenced": False, "reason": "sfm.georeference is off"}
-    gps = georeference.gps_positions(images)
-    if not gps:
-        return {"georeferenced": False, "reason": "no photo has a GPS position with altitude in its EXIF"}
-    result = georeference.georeference(models, gps, sigma=cfg.gps_sigma, seed=ctx.seed)
+    """Put the models in metres in place (GPS: sfm.georeference; sfm.gcp_file; sfm.scale_bars) and log
+    what was done; georeference.json."""
+    gps = georeference.gps_positions(images) if cfg.georeference == "auto" else None
+    path = _gcp_file(ctx, cfg)
+    try:
+        gcps = None if path is None else read_gcp_list(path)
+        result = georeference.place(models, gps, sigma=cfg.gps_sigma, seed=ctx.seed, gcps=gcps,
+                                    gcp_sigma=cfg.gcp_sigma, scale_bars=cfg.scale_bars)
+    except GcpFileError as exc:
+        raise StageError(f"sfm.gcp_file: {exc}") from None
+    except ControlError as exc:  # it names the option at fault
+        raise StageError(f"sfm.{exc}") from None
+    _log_control(ctx, result)
     if not result["georeferenced"]:
-        ctx.log.warning("sfm: not georeferenced: %s", result["reason"])
+        if gps:
+            ctx.log.warning("sfm: not georeferenced: %s", result["reason"])
+        return result
+    if result["scale_source"] == "GCP":
         return result
     origin, residuals, scale_std = result["origin"], result["residuals_m"], result["scale_relative_std"]
     ctx.log.info("sfm: georeferenced in local ENU metres around lat %.6f, lon %.6f: GPS residuals median %.2f m, "
@@ -195,3 +252,20 @@ def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[
         ctx.log.warning("sfm: GPS of %d photo(s) disagrees with the model (left out of the fit): %s",
                         len(result["outliers"]), ", ".join(result["outliers"]))
     return result
+
+
+def _log_control(ctx: StageContext, result: dict) -> None:
+    """Log what the GCPs and scale bars did (georeference.json has the figures)."""
+    gcp = result.get("gcp")
+    if gcp is not None:
+        check = "" if gcp["check_rms_m"] is None else f", leave-one-out check RMS {gcp['check_rms_m']:.3f} m"
+        ctx.log.info("sfm: placed on %d GCPs%s: residual RMS %.3f m%s", len(gcp["points"]) - len(gcp["outliers"]),
+                     " and the GPS photos" if gcp["with_gps"] else "", gcp["rms_m"], check)
+        if gcp["outliers"]:
+            ctx.log.warning("sfm: GCP(s) that disagree with the model, left out of the fit: %s",
+                            ", ".join(gcp["outliers"]))
+        for name, why in gcp["not_used"].items():
+            ctx.log.warning("sfm: GCP %s not used: %s", name, why)
+    for k, bar in enumerate(result.get("scale_bars", []), start=1):
+        ctx.log.info("sfm: scale bar %d: %.4g m, %.4g m in the model (%s)", k, bar["length_m"], bar["model_length_m"],
+                     "it set the scale" if result["scale_source"] == "scale bar" else "a check")

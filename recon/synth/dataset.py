@@ -19,6 +19,8 @@ and for the zoo's scenes (recon.synth.zoo) that have them::
     gt/transient/<stem>.png          where a transient object (in some photos only, not part of the
                                      ground truth) covers the photo; depth and normals show the
                                      static scene behind it
+    gt/geotags.json                  the GPS tag (lat, lon, alt, horizontal_error) written into each
+                                     regular photo's EXIF (recon.synth.geotags), for scenes with GPS
 
 ``extent`` is the diagonal of the axis-aligned bounding box of the surface seen by the regular
 views, i.e. of all points back-projected from their ground-truth depth maps (the parts of the ground
@@ -47,6 +49,7 @@ from recon.eval.groundtruth import Camera, load_cameras, write_cameras
 from recon.geometry.transforms import backproject
 from recon.imaging.masks import save_mask
 from recon.synth.cameras import scene_cameras
+from recon.synth.geotags import GeoTag, add_gps
 from recon.synth.render import SKY, Background, Renderer
 from recon.synth.scene import Scene, assemble, build_scene
 from recon.synth.shapes import Part
@@ -164,7 +167,8 @@ class Capture:
     noise, blur...; hold-out views stay clean: they are the reference the textures are scored on).
     ``transient``: parts standing in the regular views ``transient_views`` only; they are no part of
     the ground truth (mesh, depth, normals, hold-out views). ``masked``: names of the parts that
-    make the masked object."""
+    make the masked object. ``geotags``: GPS tags written into the EXIF of those regular views
+    (JPEG only; :mod:`recon.synth.geotags`), recorded in ``gt/geotags.json``."""
 
     background: Background = dataclasses.field(default_factory=lambda: SKY)
     develop: Callable[[np.ndarray, int], np.ndarray] | None = None
@@ -172,6 +176,7 @@ class Capture:
     transient: tuple[Part, ...] = ()
     transient_views: frozenset[int] = frozenset()
     masked: frozenset[str] = frozenset()
+    geotags: dict[str, GeoTag] = dataclasses.field(default_factory=dict)
 
 
 def write_scene(out_dir: str | Path, scene: Scene, regular: dict[str, Camera], held: dict[str, Camera], *,
@@ -204,7 +209,8 @@ def write_scene(out_dir: str | Path, scene: Scene, regular: dict[str, Camera], h
             if cams is regular and capture.develop is not None:
                 rgb = capture.develop(rgb, index)
             quality = capture.jpeg_quality if cams is regular else JPEG_QUALITY
-            _write_image(root / "images" / image_name, rgb, cam, image_format, quality)
+            _write_image(root / "images" / image_name, rgb, cam, image_format, quality,
+                         capture.geotags.get(image_name) if cams is regular else None)
             np.save(gt / "depth" / f"{stem}.npy", depth)
             np.save(gt / "normal" / f"{stem}.npy", normal)
             if masked_ids:
@@ -214,6 +220,9 @@ def write_scene(out_dir: str | Path, scene: Scene, regular: dict[str, Camera], h
                 if len(pts):
                     lo, hi = np.minimum(lo, pts.min(0)), np.maximum(hi, pts.max(0))
     write_cameras(gt / "cameras.json", regular)
+    if capture.geotags:
+        (gt / "geotags.json").write_text(json.dumps({n: dataclasses.asdict(t) for n, t in capture.geotags.items()},
+                                                    indent=1))
     if held:
         write_cameras(gt / "holdout_cameras.json", held)
     _write_mesh(gt / "mesh.ply", scene.vertices, scene.faces, scene.normals)
@@ -257,7 +266,7 @@ def _remove_previous(out: Path) -> None:
     patterns = ("gt/scene.json", "gt/cameras.json", "gt/holdout_cameras.json", "gt/mesh.ply", "gt/depth/*.npy",
                 "gt/normal/*.npy", "images/view_*.jpg", "images/view_*.png", "holdout/images/holdout_*.jpg",
                 "holdout/images/holdout_*.png", "gt/object.ply", "gt/transient/*.png", "masks/view_*.png",
-                "holdout/masks/holdout_*.png")
+                "holdout/masks/holdout_*.png", "gt/geotags.json")
     for pattern in patterns:
         for f in out.glob(pattern):
             f.unlink()
@@ -270,7 +279,8 @@ def _backproject(depth: np.ndarray, cam: Camera) -> np.ndarray:
     return backproject(cam.K, cam.R, cam.t, np.column_stack([u + 0.5, v + 0.5]), z)
 
 
-def _write_image(path: Path, rgb: np.ndarray, cam: Camera, image_format: str, quality: int = JPEG_QUALITY) -> None:
+def _write_image(path: Path, rgb: np.ndarray, cam: Camera, image_format: str, quality: int = JPEG_QUALITY,
+                 geotag: GeoTag | None = None) -> None:
     img = Image.fromarray(rgb)
     if image_format == "png":
         img.save(path, format="PNG")
@@ -291,6 +301,8 @@ def _write_image(path: Path, rgb: np.ndarray, cam: Camera, image_format: str, qu
     sub[ExifTags.Base.FocalPlaneResolutionUnit] = 3  # centimetres
     sub[ExifTags.Base.ExifImageWidth] = cam.width
     sub[ExifTags.Base.ExifImageHeight] = cam.height
+    if geotag is not None:
+        add_gps(exif, geotag)
     img.save(path, format="JPEG", quality=quality, exif=exif)
 
 

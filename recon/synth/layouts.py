@@ -10,6 +10,8 @@ ones (as recon.synth.cameras does for the seeded scene).
   forward down a street.
 - :class:`Grid`: an aerial survey: nadir views on flight lines flown back and forth, spaced for a
   given forward and side overlap of the footprints on the ground.
+- :class:`Around`: a walk around a building with a phone: eye height, facing each facade in turn and
+  turning at the corners, unevenly spaced steps.
 """
 
 from __future__ import annotations
@@ -104,7 +106,53 @@ class Grid:
         return np.asarray(self.centre, float) + [x, y, self.height]
 
 
-Layout = Orbit | Walk | Grid
+@dataclasses.dataclass(frozen=True)
+class Around:
+    """A closed walk around a rectangular building (footprint ``size`` centred on ``centre``): on the
+    footprint grown by ``distance``, corners rounded, at eye ``height``. The camera looks at the nearest
+    point of the footprint shrunk to ``facing`` of its size at ``aim`` height: it faces each facade
+    along the sides and turns through the corner on the corner's arc (``facing`` 0: always at the
+    centre). Steps along the path vary by ``unevenness`` (a fraction of a step), as a person's do."""
+
+    centre: tuple[float, float]
+    size: tuple[float, float]
+    distance: float
+    height: float = 1.6
+    aim: float = 3.0
+    facing: float = 0.6
+    unevenness: float = 0.3
+    closed: bool = True
+
+    def pose(self, s: float, views: int, rng: np.random.Generator, footprint) -> tuple[np.ndarray, np.ndarray]:
+        sx, sy = self.size
+        d = self.distance
+        sides = [sx, np.pi / 2 * d, sy, np.pi / 2 * d, sx, np.pi / 2 * d, sy, np.pi / 2 * d]
+        length = (s + rng.uniform(-self.unevenness, self.unevenness) / 2) / views * sum(sides) % sum(sides)
+        # walk counter-clockwise from the south-west corner's end along the south side (y = -sy / 2 - d)
+        corners = [(sx / 2, -sy / 2), (sx / 2, sy / 2), (-sx / 2, sy / 2), (-sx / 2, -sy / 2)]
+        for k, piece in enumerate(sides):
+            if length <= piece or k == len(sides) - 1:
+                break
+            length -= piece
+        corner = np.array(corners[k // 2])
+        heading = k // 2 * np.pi / 2  # direction of travel along side k // 2
+        if k % 2 == 0:  # a straight side, ending at ``corner``
+            along = np.array([np.cos(heading), np.sin(heading)])
+            offset = corner + d * np.array([np.sin(heading), -np.cos(heading)]) - along * (piece - length)
+        else:  # the arc round ``corner``
+            angle = heading - np.pi / 2 + length / d
+            offset = corner + d * np.array([np.cos(angle), np.sin(angle)])
+        xy = np.asarray(self.centre, float) + offset + rng.uniform(-0.15, 0.15, 2)
+        inner = np.clip(offset, -np.array([sx, sy]) * self.facing / 2, np.array([sx, sy]) * self.facing / 2)
+        center = np.array([*xy, self.height + rng.uniform(-0.1, 0.1)])
+        target = np.array([*(np.asarray(self.centre, float) + inner), self.aim + rng.uniform(-0.3, 0.3)])
+        R, _ = look_at(center, target)
+        yaw = np.radians(rng.uniform(-3.0, 3.0))
+        R = _rotation_about(np.array([0.0, 1.0, 0.0]), yaw) @ R
+        return R, -R @ center
+
+
+Layout = Orbit | Walk | Grid | Around
 
 
 def layout_cameras(layout: Layout, views: int, holdout: int, width: int, height: int, focal_factor: float,

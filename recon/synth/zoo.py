@@ -22,6 +22,7 @@ import numpy as np
 
 from recon.synth import zoo_scenes as zs
 from recon.synth.dataset import FORMATS, Capture, SceneInfo, write_scene
+from recon.synth.geotags import noisy_geotags
 from recon.synth.layouts import layout_cameras
 from recon.synth.scene import assemble
 
@@ -53,6 +54,8 @@ SCENES: dict[str, tuple[str, Callable[[np.random.Generator], zs.Setup]]] = {
                       "held-out views without it); half orbit", zs.transient_car),
     "masked_object": ("object capture on a cluttered table in a room, with masks of the object "
                       "(masks/<image name>.png); close orbit", zs.masked_object),
+    "walkaround": ("phone photos walking around a building: facades seen square-on, about 30 degrees between "
+                   "neighbours round the corners, sky, GPS tags with a few metres of noise", zs.walkaround),
 }
 
 
@@ -92,6 +95,8 @@ def render_zoo(name: str, out_dir: str | Path, views: int | None = None, width: 
                       develop=(lambda rgb, index: effects.apply(rgb, index, seed)) if effects else None,
                       jpeg_quality=setup.jpeg_quality, transient=setup.transient,
                       transient_views=frozenset(i for i in range(views) if start <= i / views < end),
-                      masked=setup.masked)
+                      masked=setup.masked,
+                      geotags=noisy_geotags({n: c.center for n, c in regular.items()}, setup.gps_sigma, seed)
+                      if setup.gps_sigma else {})
     return write_scene(out_dir, assemble(setup.parts), regular, held, seed=seed, path=type(setup.layout).__name__.lower(),
                        image_format=image_format, name=name, capture=capture)

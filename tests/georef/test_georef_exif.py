@@ -6,11 +6,11 @@ import logging
 import math
 
 import pytest
-from gps_exif import gps_ifd, set_gps
 from PIL import Image, TiffImagePlugin
 
 from recon.geometry.gps import read_gps, read_xmp_drone
 from recon.sparse.photos import inspect_photo
+from recon.synth.geotags import GeoTag, add_gps, write_gps
 
 EXIF_IFD, FOCAL, FOCAL_35 = 0x8769, 0x920A, 0xA405
 FP_XRES, FP_YRES, FP_UNIT = 0xA20E, 0xA20F, 0xA210
@@ -79,7 +79,7 @@ def test_unknown_35mm_focal_is_silent(tmp_path, caplog):
 @pytest.mark.parametrize("lat, lon, alt", [(52.518917, 13.400294, 27.0), (-33.856784, -151.215297, -12.5)])
 def test_gps_position_round_trip(tmp_path, lat, lon, alt):
     exif = _focal_exif(f35=28)
-    gps_ifd(exif, lat, lon, alt, h_error=3.5, dop=1.2)
+    add_gps(exif, GeoTag(lat, lon, alt, horizontal_error=3.5, dop=1.2))
     tag = inspect_photo(_jpeg(tmp_path / "gps.jpg", exif), "gps.jpg").gps
     assert tag is not None
     # DMS seconds are stored to 1e-4": 3 mm
@@ -88,12 +88,12 @@ def test_gps_position_round_trip(tmp_path, lat, lon, alt):
     assert tag.relative_alt is None and tag.gimbal_yaw is None
 
 
-def test_set_gps_keeps_pixels_and_other_tags(tmp_path):
+def test_write_gps_keeps_pixels_and_other_tags(tmp_path):
     path = _jpeg(tmp_path / "photo.jpg", _focal_exif(f35=35))
     before = inspect_photo(path, path.name)
     with Image.open(path) as img:
         pixels = img.tobytes()
-    set_gps(path, 48.1, 11.5, 520.0, h_error=3.0)
+    write_gps(path, GeoTag(48.1, 11.5, 520.0, horizontal_error=3.0))
     after = inspect_photo(path, path.name)
     with Image.open(path) as img:
         assert img.tobytes() == pixels
@@ -105,10 +105,10 @@ def test_set_gps_keeps_pixels_and_other_tags(tmp_path):
 def test_no_gps_void_and_zero_fixes(tmp_path, caplog):
     assert inspect_photo(_jpeg(tmp_path / "none.jpg"), "none.jpg").gps is None
     zero = _focal_exif()
-    gps_ifd(zero, 0.0, 0.0, 0.0)  # what cameras without a fix write
+    add_gps(zero, GeoTag(0.0, 0.0, 0.0))  # what cameras without a fix write
     assert inspect_photo(_jpeg(tmp_path / "zero.jpg", zero), "zero.jpg").gps is None
     void = _focal_exif()
-    gps_ifd(void, 10.0, 20.0, 5.0)
+    add_gps(void, GeoTag(10.0, 20.0, 5.0))
     void.get_ifd(0x8825)[9] = "V"
     with caplog.at_level(logging.WARNING):
         assert inspect_photo(_jpeg(tmp_path / "void.jpg", void), "void.jpg").gps is None
@@ -117,7 +117,7 @@ def test_no_gps_void_and_zero_fixes(tmp_path, caplog):
 
 def test_out_of_range_position_is_ignored_with_a_warning(tmp_path, caplog):
     exif = _focal_exif()
-    gps_ifd(exif, 10.0, 20.0, 5.0)
+    add_gps(exif, GeoTag(10.0, 20.0, 5.0))
     exif.get_ifd(0x8825)[2] = (TiffImagePlugin.IFDRational(95, 1), TiffImagePlugin.IFDRational(0, 1),
                                TiffImagePlugin.IFDRational(0, 1))
     path = _jpeg(tmp_path / "lat95.jpg", exif)
@@ -148,7 +148,7 @@ def test_dji_xmp_read_from_attributes_and_elements():
 
 def test_drone_photo_gps_with_xmp(tmp_path):
     exif = _focal_exif(f35=24)
-    gps_ifd(exif, 47.3769, 8.5417, 468.2)
+    add_gps(exif, GeoTag(47.3769, 8.5417, 468.2))
     tag = inspect_photo(_jpeg(tmp_path / "DJI_0001.jpg", exif, xmp=DJI_XMP_ATTRIBUTES), "DJI_0001.jpg").gps
     assert (tag.lat, tag.lon, tag.alt) == pytest.approx((47.3769, 8.5417, 468.2))
     assert (tag.relative_alt, tag.gimbal_yaw, tag.gimbal_pitch, tag.gimbal_roll) == (60.1, -92.3, -89.9, 0.0)

@@ -12,11 +12,11 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 import pytest
-from gps_exif import set_gps
 
 import recon
 from recon.geometry.gps import enu_from_wgs84, wgs84_from_enu
 from recon.geometry.transforms import Similarity, umeyama
+from recon.synth.geotags import GeoTag, write_gps
 
 REPO = Path(__file__).resolve().parents[2]
 SPARSE_TEST = REPO / "tests" / "sparse_test.yaml"
@@ -54,7 +54,7 @@ def _tagged_photos(scene, centres: dict, folder: Path, outliers: tuple[str, ...]
             direction = rng.normal(size=3)
             noisy = enu + 100.0 * direction / np.linalg.norm(direction)
         lat, lon, alt = wgs84_from_enu(noisy, ORIGIN)[0]
-        set_gps(folder / name, lat, lon, alt, h_error=SIGMA)
+        write_gps(folder / name, GeoTag(lat, lon, alt, horizontal_error=SIGMA))
     return folder
 
 

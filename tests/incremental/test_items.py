@@ -55,3 +55,24 @@ def test_a_half_written_item_leaves_nothing(tmp_path):
     except OSError:
         pass
     assert store.get(item_key(1)) is None and list((tmp_path / "items").iterdir()) == []
+
+
+def test_clean_keeps_items_and_counts_only_the_bytes_it_frees(tmp_path):
+    """`recon clean` drops stage outputs the config no longer uses but keeps the items (what added
+    photos reuse); a depth map that is both an output and an item frees nothing until `--all`."""
+    from recon.pipeline import clean
+    from recon.workspace import Workspace
+
+    ws = Workspace(tmp_path / "ws")
+    old = ws.output_dir("mvs", "0" * 64)
+    old.mkdir(parents=True)
+    (old / "only_here.bin").write_bytes(b"x" * 1000)
+    store = ItemStore(ws.items_dir("mvs"), ".bin")
+    key = item_key({"view": 1})
+    store.write(key, lambda p: p.write_bytes(b"d" * 5000))
+    assert store.link(key, old / "depth.bin")
+
+    assert clean(None, ws.root) == (1, 1000)  # the output's own file; the depth map lives on as an item
+    assert not old.exists() and store.get(key) is not None
+    removed, freed = clean(None, ws.root, everything=True)
+    assert removed == 0 and freed >= 5000 and not ws.items_dir("mvs").exists()

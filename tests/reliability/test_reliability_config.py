@@ -159,6 +159,8 @@ def holds(built, given_value) -> bool:
     """``built`` has every value of ``given_value`` (nested mappings: the keys given)."""
     if isinstance(given_value, dict):
         return all(holds(built[k], v) for k, v in given_value.items())
+    if isinstance(given_value, list):  # e.g. sfm.scale_bars: each item a mapping of some of its options
+        return len(built) == len(given_value) and all(map(holds, built, given_value))
     return built == given_value
 
 

@@ -1,0 +1,121 @@
+"""Depth maps per view in the item store (issue 18): an mvs option recomputes every depth map and
+nothing before mvs; maps whose inputs did not change are reused, byte for byte."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+
+import recon
+from recon.files import read_json
+
+REPO = Path(__file__).resolve().parents[2]
+SPARSE = REPO / "tests" / "sparse_test.yaml"
+# small and quick: depth-map quality is measured by tests/mvs and the benchmarks
+MVS = {"max_image_size": 120, "pyramid_levels": 1, "iterations": 2}
+BEFORE_MVS = ("ingest", "preprocess", "features", "matching", "sfm", "undistort")
+
+
+def manifests(ws: Path, stage: str) -> list[dict]:
+    """The manifests of every completed output of ``stage``, oldest first."""
+    found = [read_json(p) for p in (ws / ".recon" / "cache" / stage).glob("*/manifest.json")]
+    return sorted(found, key=lambda m: m["finished"])
+
+
+def depth_maps(ws: Path, manifest: dict) -> dict[str, Path]:
+    folder = ws / ".recon" / "cache" / "mvs" / manifest["key"][:16] / "stereo" / "depth_maps"
+    return {p.name: p for p in folder.glob("*.geometric.bin")}
+
+
+def run_mvs(ws: Path, scene: Path, **mvs) -> recon.pipeline.RunResult:
+    return recon.run(SPARSE, overrides=["until=mvs"], images=str(scene / "images"), workspace=str(ws), executor="serial",
+                     undistort={"max_image_size": 240}, mvs={**MVS, **mvs})
+
+
+@pytest.fixture(scope="module")
+def mvs_workspace(sparse_workspace, small_scene, tmp_path_factory) -> Path:
+    """The sparse test workspace taken through undistort and mvs (16 views, quick settings)."""
+    ws = tmp_path_factory.mktemp("mvs-reuse") / "ws"
+    shutil.copytree(sparse_workspace, ws, symlinks=True)
+    run_mvs(ws, small_scene)
+    return ws
+
+
+def test_a_window_radius_change_recomputes_every_depth_map_and_nothing_before_mvs(mvs_workspace, small_scene,
+                                                                                   tmp_path):
+    ws = tmp_path / "ws"
+    shutil.copytree(mvs_workspace, ws, symlinks=True)
+    (first,) = manifests(ws, "mvs")
+    result = run_mvs(ws, small_scene, window_radius=3)
+    assert result.ran == ["mvs"] and set(BEFORE_MVS) <= set(result.cached)
+    for stage in BEFORE_MVS:
+        assert len(manifests(ws, stage)) == 1, stage
+    first, second = manifests(ws, "mvs")
+    assert second["config"]["window_radius"] == 3
+    s = second["summary"]
+    assert (s["reused"], s["computed"], s["photometric_computed"]) == (0, 16, 16)
+    before, after = depth_maps(ws, first), depth_maps(ws, second)
+    assert sorted(before) == sorted(after) and len(after) == 16
+    assert all(after[n].read_bytes() != before[n].read_bytes() for n in after)  # every map made again
+
+
+def test_depth_maps_are_reused_when_nothing_they_depend_on_changed(mvs_workspace, small_scene, tmp_path):
+    """The mvs output lost, the same config runs mvs again: every view's maps come from the item
+    store (``recon status`` says so first), identical to those the first run computed."""
+    ws = tmp_path / "ws"
+    shutil.copytree(mvs_workspace, ws, symlinks=True)
+    (first,) = manifests(ws, "mvs")
+    kept = {n: p.read_bytes() for n, p in depth_maps(ws, first).items()}
+    shutil.rmtree(ws / ".recon" / "cache" / "mvs" / first["key"][:16])
+    overrides = ["until=mvs", "undistort.max_image_size=240", *(f"mvs.{k}={v}" for k, v in MVS.items())]
+    rows = {r.name: r for r in recon.api.status(SPARSE, overrides, images=str(small_scene / "images"),
+                                                 workspace=str(ws))}
+    assert rows["mvs"].reuse == "reuses the depth maps of 16 of 16 views"
+    result = run_mvs(ws, small_scene)
+    assert result.ran == ["mvs"]
+    s = result.summaries["mvs"]
+    assert (s["reused"], s["computed"], s["photometric_computed"]) == (16, 0, 0)
+    (again,) = manifests(ws, "mvs")
+    assert {n: p.read_bytes() for n, p in depth_maps(ws, again).items()} == kept
+
+
+@pytest.mark.slow
+def test_a_forced_mvs_reuses_no_depth_map(mvs_workspace, small_scene, tmp_path):
+    ws = tmp_path / "ws"
+    shutil.copytree(mvs_workspace, ws, symlinks=True)
+    result = recon.run(SPARSE, overrides=["until=mvs"], images=str(small_scene / "images"), workspace=str(ws),
+                       executor="serial", force=["mvs"], undistort={"max_image_size": 240}, mvs=MVS)
+    assert result.summaries["mvs"]["reused"] == 0 and result.summaries["mvs"]["computed"] == 16
+
+
+@pytest.mark.slow
+def test_added_photos_cost_their_own_depth_maps(small_scene, tmp_path):
+    """12 photos to depth maps, then the 4 others added and the same command run again: sfm keeps the
+    12 poses, the 12 views keep their sources (``reselect_top: 0``: even where a new view now ranks
+    among their best), so their maps are reused (the same files) and only the new views' maps are
+    computed."""
+    images, ws = tmp_path / "images", tmp_path / "ws"
+    images.mkdir()
+    photos = sorted((small_scene / "images").iterdir())
+    for photo in photos[:12]:
+        shutil.copy(photo, images)
+    first = recon.run(SPARSE, overrides=["until=mvs"], images=str(images), workspace=str(ws), executor="serial",
+                      undistort={"max_image_size": 240}, mvs={**MVS, "reselect_top": 0})
+    assert first.summaries["mvs"]["computed"] == 12
+    (before,) = manifests(ws, "mvs")
+    kept = {n: p.read_bytes() for n, p in depth_maps(ws, before).items()}
+    for photo in photos[12:]:
+        shutil.copy(photo, images)
+    result = recon.run(SPARSE, overrides=["until=mvs"], images=str(images), workspace=str(ws), executor="serial",
+                       undistort={"max_image_size": 240}, mvs={**MVS, "reselect_top": 0})
+    assert result.summaries["sfm"]["mapping"] == "continued" and result.summaries["sfm"]["registered"] == 16
+    s = result.summaries["mvs"]
+    assert s["views"] == 16 and s["reused"] + s["computed"] == 16 and s["reused"] >= 10, s
+    _, after = manifests(ws, "mvs")
+    views = read_json(ws / ".recon" / "cache" / "mvs" / after["key"][:16] / "views.json")
+    assert not any(views[p.name]["reused"] for p in photos[12:])
+    maps = depth_maps(ws, after)
+    reused = [n for n, v in views.items() if v["reused"]]
+    assert all(maps[f"{n}.geometric.bin"].read_bytes() == kept[f"{n}.geometric.bin"] for n in reused)
