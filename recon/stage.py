@@ -127,6 +127,17 @@ class StageContext:
         """A path option of the config as an absolute path (see :func:`resolve_path`)."""
         return resolve_path(self.base, value)
 
+    def user_path(self, option: str, value: str | os.PathLike | None, hint: str, folder: bool = False) -> Path | None:
+        """The user's file (or ``folder``) a path option of this stage names, resolved; None when the
+        option is unset; a one-line error naming the option and ``hint`` (what to give) when the
+        path is not one."""
+        if value is None:
+            return None
+        path = self.resolve(value)
+        if not (path.is_dir() if folder else path.is_file()):
+            raise StageError(f"{self.name}.{option}: {path} is not a {'folder' if folder else 'file'}; {hint}")
+        return path
+
     def digest(self, path: Path) -> str:
         """The content hash of an input file (remembered across runs)."""
         return self.hashes.digest(path)

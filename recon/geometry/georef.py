@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from recon.geometry.transforms import Similarity, umeyama
+from recon.geometry.transforms import Similarity, umeyama, weighted_umeyama
 
 #: 99 % quantile of the length of a 3D vector of independent N(0, 1) components (chi, 3 degrees of
 #: freedom): a camera centre farther than this many GPS sigmas from its GPS position is an outlier
@@ -149,23 +149,6 @@ class ControlAlignment:
     inliers: np.ndarray  # (N,) bool: used in the final fit
     checks: np.ndarray  # (N,) leave-one-out distance: the point's error in a fit without it (NaN: not possible)
     scale_std: float  # relative standard error of the scale: jackknife over the inliers (NaN below 3 fits)
-
-
-def weighted_umeyama(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> Similarity:
-    """Least-squares similarity ``dst ~ s R src + t`` minimising sum w |dst - (s R src + t)|^2 (Umeyama
-    1991 with weights): with equal weights, :func:`recon.geometry.transforms.umeyama`."""
-    src = np.asarray(src, dtype=float).reshape(-1, 3)
-    dst = np.asarray(dst, dtype=float).reshape(-1, 3)
-    w = np.asarray(weights, dtype=float) / np.sum(weights)
-    mu_s, mu_d = w @ src, w @ dst
-    xs, xd = src - mu_s, dst - mu_d
-    U, D, Vt = np.linalg.svd((xd * w[:, None]).T @ xs)
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
-        S[2, 2] = -1.0
-    R = U @ S @ Vt
-    s = float(np.trace(np.diag(D) @ S) / (w @ (xs**2).sum(axis=1)))
-    return Similarity(s, R, mu_d - s * R @ mu_s)
 
 
 def align_to_control(points: np.ndarray, targets: np.ndarray, sigma: float,

@@ -147,15 +147,23 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> Simila
     dst = np.asarray(dst, dtype=float).reshape(-1, 3)
     if len(src) != len(dst) or len(src) < 3:
         raise ValueError(f"umeyama needs >= 3 paired points, got {len(src)} and {len(dst)}")
-    mu_s, mu_d = src.mean(0), dst.mean(0)
+    return weighted_umeyama(src, dst, np.ones(len(src)), with_scale)
+
+
+def weighted_umeyama(src: np.ndarray, dst: np.ndarray, weights: np.ndarray, with_scale: bool = True) -> Similarity:
+    """Least-squares similarity ``dst ~ s R src + t`` minimising sum w |dst - (s R src + t)|^2 (Umeyama
+    1991 with weights; :func:`umeyama` with equal weights)."""
+    src = np.asarray(src, dtype=float).reshape(-1, 3)
+    dst = np.asarray(dst, dtype=float).reshape(-1, 3)
+    w = np.asarray(weights, dtype=float) / np.sum(weights)
+    mu_s, mu_d = w @ src, w @ dst
     xs, xd = src - mu_s, dst - mu_d
-    cov = xd.T @ xs / len(src)
-    U, D, Vt = np.linalg.svd(cov)
+    U, D, Vt = np.linalg.svd((xd * w[:, None]).T @ xs)
     S = np.eye(3)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0:
         S[2, 2] = -1.0
     R = U @ S @ Vt
-    var_s = (xs**2).sum() / len(src)
+    var_s = w @ (xs**2).sum(axis=1)
     s = float(np.trace(np.diag(D) @ S) / var_s) if with_scale and var_s > 0 else 1.0
     return Similarity(s, R, mu_d - s * R @ mu_s)
 

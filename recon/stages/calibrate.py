@@ -37,12 +37,7 @@ class CalibrateConfig:
 
 
 def _folder(ctx: StageContext, cfg: CalibrateConfig) -> Path | None:
-    if cfg.images is None:
-        return None
-    folder = ctx.resolve(cfg.images)
-    if not folder.is_dir():
-        raise StageError(f"calibrate.images: {folder} is not a folder; give the folder of board photos")
-    return folder
+    return ctx.user_path("images", cfg.images, "give the folder of board photos", folder=True)
 
 
 @register

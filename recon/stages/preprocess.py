@@ -173,13 +173,7 @@ class Preprocess(Stage):
 
 
 def _mask_folder(ctx: StageContext, cfg: PreprocessConfig) -> Path | None:
-    if cfg.mask_dir is None:
-        return None
-    folder = ctx.resolve(cfg.mask_dir)
-    if not folder.is_dir():
-        raise StageError(f"preprocess.mask_dir: {folder} is not a folder; give the folder that holds "
-                         "<image name>.png masks")
-    return folder
+    return ctx.user_path("mask_dir", cfg.mask_dir, "give the folder that holds <image name>.png masks", folder=True)
 
 
 def _mask_of(masks: Path | None, view: _View) -> Path | None:

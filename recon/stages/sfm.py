@@ -215,13 +215,8 @@ def _level(models: list, georef: dict, kept: dict | None = None) -> list[dict]:
 
 
 def _gcp_file(ctx: StageContext, cfg: SfmConfig) -> Path | None:
-    if cfg.gcp_file is None:
-        return None
-    path = ctx.resolve(cfg.gcp_file)
-    if not path.is_file():
-        raise StageError(f"sfm.gcp_file: {path} is not a file; give an OpenDroneMap gcp_list.txt "
-                         "(format: README, 'Metric scale and ground control')")
-    return path
+    return ctx.user_path("gcp_file", cfg.gcp_file,
+                         "give an OpenDroneMap gcp_list.txt (format: README, 'Metric scale and ground control')")
 
 
 def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[dict]) -> dict:

@@ -58,13 +58,8 @@ class _Pair:
 
 
 def _calibration_file(ctx: StageContext, cfg: StereoConfig) -> Path | None:
-    if cfg.calibration is None:
-        return None
-    path = ctx.resolve(cfg.calibration)
-    if not path.is_file():
-        raise StageError(f"stereo.calibration: {path} is not a file; give the stereo calibration file "
-                         "(format: see pipelines/stereo.yaml)")
-    return path
+    return ctx.user_path("calibration", cfg.calibration,
+                         "give the stereo calibration file (format: see pipelines/stereo.yaml)")
 
 
 def _read_photo(path: Path) -> np.ndarray:
