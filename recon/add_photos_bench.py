@@ -8,12 +8,13 @@ the second run has 23 photos to register, not 7. Prints the seconds of each run,
 from-scratch run (same process, same machine), registered photos, pose AUC, and what the second
 run reused (features, pairs, the previous model).
 
-Then the same with pipelines/full.yaml on the zoo's ``classic`` scene (24 views at 320x240, the
-size ``make bench-quality`` can be asked for; dense work dominates there): 20 views, then every
-6th view added, against all 24 from scratch; the fused cloud's and the mesh's F-scores at 0.2 %
-and 0.5 % of the scene's extent, and the depth maps the second run reused.
+Then the same with pipelines/full.yaml on the zoo's ``classic`` scene (24 views at the zoo's size,
+640x480, or ``--size``): 20 views, then every 6th view added, against all 24 from scratch; the
+fused cloud's and the mesh's F-scores at 0.2 % and 0.5 % of the scene's extent, and the depth maps
+the second run reused. The smaller the photos, the larger the share of the whole-model stages
+(mesh, texture, report) that the second run repeats.
 
-    python -m recon.add_photos_bench [--datasets DIR] [--out DIR] [--only temple|zoo]
+    python -m recon.add_photos_bench [--datasets DIR] [--out DIR] [--only temple|zoo] [--size WxH]
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 PIPELINES = Path(__file__).resolve().parent / "pipelines"
 DATASET = "temple_ring"
 ADDED = 7
-ZOO_SCENE, ZOO_VIEWS, ZOO_ADDED, ZOO_SIZE = "classic", 24, 4, (320, 240)
+ZOO_SCENE, ZOO_VIEWS, ZOO_ADDED, ZOO_SIZE = "classic", 24, 4, (640, 480)
 TAUS = ("0.002", "0.005")
 
 
@@ -83,13 +84,13 @@ def bench_add_photos(datasets: Path, out: Path) -> dict | None:
     return rows
 
 
-def bench_zoo(out: Path) -> dict:
-    """The zoo scene's three runs (module doc): seconds, F-scores, the second run's summaries."""
+def bench_zoo(out: Path, size: tuple[int, int] = ZOO_SIZE) -> dict:
+    """The zoo scene's three runs (module doc) at ``size``: seconds, F-scores, the second run's summaries."""
     from recon.eval.workspace import evaluate
     from recon.synth.zoo import render_zoo
 
     shutil.rmtree(out, ignore_errors=True)
-    scene = render_zoo(ZOO_SCENE, out / "scene", views=ZOO_VIEWS, width=ZOO_SIZE[0], height=ZOO_SIZE[1])
+    scene = render_zoo(ZOO_SCENE, out / "scene", views=ZOO_VIEWS, width=size[0], height=size[1])
     photos = sorted(p for p in scene.images_dir.iterdir() if p.is_file())
     step = len(photos) // ZOO_ADDED
     added = photos[step // 2::step][:ZOO_ADDED]
@@ -127,8 +128,9 @@ def print_zoo(rows: dict) -> None:
     last = list(rows.values())[-1]
     print(f"second run, seconds per stage: {', '.join(f'{k} {v:.1f}' for k, v in last['stages'].items())}")
     mvs = last["summaries"].get("mvs", {})
-    print(f"second run: depth maps of {mvs.get('reused', 0)} of {mvs.get('views', 0)} views reused, "
-          f"{mvs.get('computed', 0)} computed ({mvs.get('photometric_computed', 0)} photometric passes); "
+    print(f"second run: final depth maps of {mvs.get('reused', 0)} of {mvs.get('views', 0)} views reused, "
+          f"{mvs.get('computed', 0)} computed ({mvs.get('photometric_computed', 0)} photometric passes, "
+          f"{mvs.get('photometric_reused', 0)} from earlier photometric maps); "
           f"sfm: {last['summaries']['sfm']['mapping']}")
 
 
@@ -151,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--datasets", type=Path, default=recon.datasets_root())
     parser.add_argument("--out", type=Path, default=REPO / "bench_out" / "add_photos")
     parser.add_argument("--only", choices=["temple", "zoo"])
+    parser.add_argument("--size", type=lambda v: tuple(int(x) for x in v.lower().split("x")), default=ZOO_SIZE,
+                        help="zoo scene size, WxH (default 640x480)")
     args = parser.parse_args(argv)
     if args.only in (None, "temple"):
         print(f"\n== add photos: {DATASET}, all but {ADDED} photos, then those {ADDED} added (same command), "
@@ -159,9 +163,9 @@ def main(argv: list[str] | None = None) -> int:
         if rows is not None:
             print_add_photos(rows)
     if args.only in (None, "zoo"):
-        print(f"\n== add photos, full pipeline: zoo scene {ZOO_SCENE} ({ZOO_SIZE[0]}x{ZOO_SIZE[1]}), "
+        print(f"\n== add photos, full pipeline: zoo scene {ZOO_SCENE} ({args.size[0]}x{args.size[1]}), "
               f"{ZOO_VIEWS - ZOO_ADDED} views, then {ZOO_ADDED} added, vs all {ZOO_VIEWS} from scratch ==", flush=True)
-        print_zoo(bench_zoo(args.out / ZOO_SCENE))
+        print_zoo(bench_zoo(args.out / f"{ZOO_SCENE}_{args.size[0]}x{args.size[1]}", args.size))
     return 0
 
 

@@ -4,19 +4,23 @@ Per scene: registered views, the fused cloud's and the mesh's F-score at 0.2 % a
 scene's extent (recon.eval.surface, through ``recon.api.evaluate``: the model is aligned to the
 ground truth by a robust similarity on the camera centres), and in the scene's held-out views the
 masked PSNR of the textured mesh beside that of the vertex-coloured mesh (the baseline a texture
-must beat) and the texture's coverage; seconds per stage. Then the mean and the worst scene.
+must beat) and the texture's coverage; seconds per stage. Then the mean and the worst scene. Beside
+them, to tell which part of the chain lost a scene's quality: the cameras' relative-pose AUC at 5
+degrees (sfm) and the final depth maps' accuracy and completeness at 0.2 % (mvs; recon.eval.depth).
 
 - PSNR is over the pixels where the rendered mesh and the true surface both are (recon.eval.texture).
-- Coverage is the share of the held-out views' true-surface pixels (ground-truth depth > 0) that
-  the textured mesh covers.
+- Coverage is the share of the held-out views' true-surface pixels (ground-truth depth > 0; in a
+  masked scene, those of the masked object) that the textured mesh covers.
 - A scene whose pipeline fails counts as F = 0 and coverage 0 in the mean and the worst (its error
   is printed); its PSNR is left out, as is the PSNR of a scene whose mesh shows nothing in its
   held-out views.
-- ``masked_object`` runs with ``preprocess.mask_dir`` set to the masks it ships.
+- ``masked_object`` runs with ``preprocess.mask_dir`` set to the masks it ships, and its fused cloud
+  and mesh are scored against the masked object alone (against the whole scene, the room and the
+  table the masks keep out counted as missing: fused F@0.2 % 0.014).
 
 Results go to ``<out>/quality.json`` (figures per scene and the summary), so two runs can be
 compared. Scenes render once into ``<out>/quality/<scene>/scene`` and are reused while their
-size and view count match.
+size, view count and definition (``recon.synth.zoo.zoo_digest``) match.
 
     python -m recon.bench --only quality [--scenes a,b] [--size 640x480] [--views N] [-o key=value]...
 """
@@ -43,17 +47,23 @@ STAGES = ("ingest", "preprocess", "features", "matching", "sfm", "export", "undi
 
 
 def scene_for(name: str, root: Path, width: int, height: int, views: int | None):
-    """The rendered zoo scene ``name`` under ``root`` (rendered when absent or of another size)."""
+    """The rendered zoo scene ``name`` under ``root`` (rendered when absent, of another size, or made
+    from an earlier definition of the scene: ``<root>.digest`` holds the zoo's digest of the rendering)."""
     from recon.synth import load_scene
-    from recon.synth.zoo import render_zoo
+    from recon.synth.zoo import render_zoo, zoo_digest
 
+    digest = zoo_digest(name)
+    stamp = root.with_name(root.name + ".digest")
     try:
         info = load_scene(root)
-        if info.name == name and (info.width, info.height) == (width, height) and views in (None, info.views):
+        if info.name == name and (info.width, info.height) == (width, height) and views in (None, info.views) \
+                and stamp.is_file() and stamp.read_text() == digest:
             return info
     except FileNotFoundError:
         pass
-    return render_zoo(name, root, views=views, width=width, height=height)
+    info = render_zoo(name, root, views=views, width=width, height=height)
+    stamp.write_text(digest)
+    return info
 
 
 def holdout_texture(ws: Path, scene) -> dict:
@@ -63,6 +73,7 @@ def holdout_texture(ws: Path, scene) -> dict:
     from PIL import Image
 
     from recon.eval.texture import masked_psnr, render
+    from recon.imaging.masks import load_mask
     from recon.surface.export import read_glb
 
     sim = recon.api.model_to_ground_truth(ws, scene.root)
@@ -75,6 +86,8 @@ def holdout_texture(ws: Path, scene) -> dict:
     for name, cam in scene.cameras(holdout=True).items():
         truth = np.asarray(Image.open(scene.holdout_images_dir / name).convert("RGB"))
         surface = scene.depth(name) > 0
+        if scene.masked:  # the masked object's pixels only: the masks keep the rest out of the texture
+            surface &= load_mask(scene.holdout_masks_dir, name, surface.shape)
         for key, mesh in meshes.items():
             image, mask = render(mesh, cam, cam.width, cam.height)
             if (mask & surface).any():  # no PSNR where the mesh shows nothing of the surface
@@ -85,6 +98,37 @@ def holdout_texture(ws: Path, scene) -> dict:
     if psnr["texture"]:
         out |= {"psnr": float(np.mean(psnr["texture"])), "psnr_vertex_colours": float(np.mean(psnr["vertex_colours"]))}
     return out
+
+
+def object_figures(ws: Path, scene) -> dict:
+    """The fused cloud's and the mesh's figures against the masked object alone (recon.eval.surface.
+    object_metrics): the masks keep everything else out by design, so the rest of the scene is not
+    what they are scored on. The thresholds stay fractions of the scene's extent, as in every other
+    scene (the object's own diagonal, 0.45 m, would make 0.2 % a quarter of a pixel at 320x240)."""
+    import trimesh
+
+    from recon.eval.surface import object_metrics
+    from recon.products import Published
+
+    sim = recon.api.model_to_ground_truth(ws, scene.root)
+    truth = trimesh.load(scene.object_mesh_path, process=False, force="mesh")
+    out = {}
+    for key, path in (("fused", Published(ws).fused), ("mesh", Published(ws).mesh)):
+        geometry = trimesh.load(path, process=False)
+        geometry.vertices = sim.apply(np.asarray(geometry.vertices))
+        out[key] = object_metrics(geometry, truth, thresholds=tuple(float(t) for t in TAUS), extent=scene.extent)
+    return out
+
+
+def depth_figures(ws: Path, scene) -> dict:
+    """The final depth maps' accuracy and completeness at 0.2 % of the extent and the share of their
+    depths on the background, averaged over the views (recon.eval.depth, every 2nd pixel): with the
+    poses' AUC they tell which part of the chain lost a scene's quality."""
+    from recon.eval.depth import workspace_depth_metrics
+
+    views = workspace_depth_metrics(ws, scene, stride=2).values()
+    return {key: float(np.mean([v[key] for v in views])) if views else 0.0
+            for key in ("accuracy@0.002", "completeness@0.002", "background")}
 
 
 def bench_scene(name: str, out: Path, config: Path, overrides: list[str], width: int, height: int,
@@ -100,14 +144,22 @@ def bench_scene(name: str, out: Path, config: Path, overrides: list[str], width:
     try:
         result = recon.run(config, images=str(scene.images_dir), workspace=str(ws), overrides=[*overrides, *extra])
         row["seconds"] = {k: round(v, 2) for k, v in result.seconds.items()}
-        figures = recon.api.evaluate(ws, scene.root)
-        row["registered"] = figures["poses"]["registered"]
-        for key in ("fused", "mesh"):
-            row[key] = {f"F@{t}": figures[key][f"fscore@{t}"] / 100 for t in TAUS if key in figures}
-        row.update(holdout_texture(ws, scene))
+        row.update(scene_figures(ws, scene))
     except Exception as exc:  # a failing scene is a result: record it and go on with the others
         row["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
     return row
+
+
+def scene_figures(ws: Path, scene) -> dict:
+    """The figures of a finished workspace of a zoo scene (the module doc's columns)."""
+    figures = recon.api.evaluate(ws, scene.root)
+    if scene.masked:
+        figures |= object_figures(ws, scene)
+    row = {"registered": figures["poses"]["registered"], "pose_auc@5": figures["poses"]["auc@5"] / 100,
+           "depth": depth_figures(ws, scene)}
+    for key in ("fused", "mesh"):
+        row[key] = {f"F@{t}": figures[key][f"fscore@{t}"] / 100 for t in TAUS if key in figures}
+    return row | holdout_texture(ws, scene)
 
 
 def summary(rows: list[dict]) -> dict:
@@ -126,7 +178,7 @@ def print_table(rows: list[dict], summ: dict) -> None:
     stages = [s for s in STAGES if any(s in r.get("seconds", {}) for r in rows)]
     short = {"preprocess": "prep", "features": "feat", "matching": "match", "undistort": "undist",
              "fusion": "fuse", "texture": "tex"}
-    head = (f"{'scene':<16}{'reg':>6}{'fusedF.2':>9}{'fusedF.5':>9}{'meshF.2':>8}{'meshF.5':>8}{'texPSNR':>8}"
+    head = (f"{'scene':<16}{'reg':>6}{'AUC5':>6}{'dAcc.2':>7}{'dCmp.2':>7}{'fusedF.2':>9}{'fusedF.5':>9}{'meshF.2':>8}{'meshF.5':>8}{'texPSNR':>8}"
             f"{'vcPSNR':>7}{'cover':>7} |" + "".join(f"{short.get(s, s):>7}" for s in stages) + f"{'total':>8}")
     print(head)
     print("-" * len(head))
@@ -138,7 +190,9 @@ def print_table(rows: list[dict], summ: dict) -> None:
         f = [r.get(k, {}).get(f"F@{t}") for k in ("fused", "mesh") for t in TAUS]
         reg = f"{r['registered']}/{r['views']}" if "registered" in r else "-"
         secs = r.get("seconds", {})
-        print(f"{r['scene']:<16}{reg:>6}{fig(f[0], '9.3f')}{fig(f[1], '9.3f')}{fig(f[2], '8.3f')}{fig(f[3], '8.3f')}"
+        depth = r.get("depth", {})
+        print(f"{r['scene']:<16}{reg:>6}{fig(r.get('pose_auc@5'), '6.2f')}{fig(depth.get('accuracy@0.002'), '7.3f')}"
+              f"{fig(depth.get('completeness@0.002'), '7.3f')}{fig(f[0], '9.3f')}{fig(f[1], '9.3f')}{fig(f[2], '8.3f')}{fig(f[3], '8.3f')}"
               f"{fig(r.get('psnr'), '8.2f')}{fig(r.get('psnr_vertex_colours'), '7.2f')}{fig(r.get('coverage'), '7.3f')} |"
               + "".join(f"{secs[s]:>7.1f}" if s in secs else f"{'-':>7}" for s in stages)
               + f"{sum(secs.values()):>8.1f}")
@@ -146,7 +200,7 @@ def print_table(rows: list[dict], summ: dict) -> None:
             print(f"{'':<16}failed: {r['error']}")
     for which in ("mean", "worst"):
         m = summ[which]
-        print(f"{which:<16}{'':>6}{fig(m.get('fused@0.002'), '9.3f')}{fig(m.get('fused@0.005'), '9.3f')}"
+        print(f"{which:<16}{'':>26}{fig(m.get('fused@0.002'), '9.3f')}{fig(m.get('fused@0.005'), '9.3f')}"
               f"{fig(m.get('mesh@0.002'), '8.3f')}{fig(m.get('mesh@0.005'), '8.3f')}{fig(m.get('psnr'), '8.2f')}"
               f"{fig(m.get('psnr_vertex_colours'), '7.2f')}{fig(m.get('coverage'), '7.3f')} |")
     if "psnr_gain" in summ["mean"]:

@@ -52,7 +52,7 @@ def surface_metrics(points_or_mesh, scene: SceneInfo, thresholds=THRESHOLDS, see
     verts, faces = _as_geometry(points_or_mesh)
     points = verts if faces is None else sample_mesh(verts, faces, spacing * 2 / 3, seed)
 
-    acc_dist = _gt_distance(str(scene.mesh_path), scene.mesh_path.stat().st_mtime_ns)(points)
+    acc_dist = ground_truth_distance(scene)(points)
     gt_pts = observed_points(scene, spacing)
     if faces is None:
         # bounded: unbounded nearest-neighbour queries far from a thin (planar) cloud take minutes
@@ -139,6 +139,11 @@ def _mesh_distance(vertices: np.ndarray, faces: np.ndarray):
     return distance
 
 
+def ground_truth_distance(scene: SceneInfo):
+    """A function giving the distance of (N, 3) points to ``scene``'s true mesh (exact; cached per scene)."""
+    return _gt_distance(str(scene.mesh_path), scene.mesh_path.stat().st_mtime_ns)
+
+
 @functools.lru_cache(maxsize=4)
 def _gt_distance(mesh_path: str, _stamp: int):
     import trimesh
@@ -172,19 +177,25 @@ def _as_geometry(obj) -> tuple[np.ndarray, np.ndarray | None]:
     raise TypeError(f"cannot evaluate a {type(obj).__name__}: give points (N, 3), a mesh or a file path")
 
 
-def object_metrics(mesh, object_mesh, thresholds=THRESHOLDS, seed: int = 0) -> dict:
-    """Accuracy, completeness and F-score (percent) of a mesh against one object alone (a masked
-    capture's subject), at each ``tau`` times the object's bounding-box diagonal: accuracy over
-    samples of ``mesh`` (anything else it holds counts against it), completeness over samples of
-    the object's whole surface (its underside, which no photo sees, included)."""
+def object_metrics(mesh, object_mesh, thresholds=THRESHOLDS, seed: int = 0, extent: float | None = None) -> dict:
+    """Accuracy, completeness and F-score (percent) of a mesh or a point cloud (any input of
+    :func:`surface_metrics`) against one object alone (a masked capture's subject), at each ``tau``
+    times ``extent`` (default: the object's bounding-box diagonal): accuracy over samples of ``mesh``
+    (or its points; anything else it holds counts against it), completeness over samples of the
+    object's whole surface (its underside, which no photo sees, included)."""
     verts, faces = _as_geometry(mesh)
     obj_verts, obj_faces = _as_geometry(object_mesh)
-    extent = float(np.linalg.norm(np.ptp(obj_verts, axis=0)))
+    extent = extent or float(np.linalg.norm(np.ptp(obj_verts, axis=0)))
     spacing = min(float(t) for t in thresholds) * extent / 2
-    points = sample_mesh(verts, faces, spacing, seed)
+    points = verts if faces is None else sample_mesh(verts, faces, spacing, seed)
     truth = sample_mesh(obj_verts, obj_faces, spacing, seed + 1)
     acc = _mesh_distance(obj_verts, obj_faces)(points)
-    comp = _mesh_distance(verts, faces)(truth)
+    if faces is None:
+        bound = max(thresholds) * extent
+        comp = cKDTree(points).query(truth, workers=-1, distance_upper_bound=bound)[0] if len(points) \
+            else np.full(len(truth), np.inf)
+    else:
+        comp = _mesh_distance(verts, faces)(truth)
     out = {}
     for tau in thresholds:
         a, c = 100 * np.mean(acc <= tau * extent), 100 * np.mean(comp <= tau * extent)

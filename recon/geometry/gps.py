@@ -24,7 +24,8 @@ _GPS_IFD = 0x8825
 _LAT_REF, _LAT, _LON_REF, _LON, _ALT_REF, _ALT, _STATUS, _DOP, _H_ERROR = 1, 2, 3, 4, 5, 6, 9, 11, 31
 #: drone XMP properties read (DJI's ``drone-dji:`` names; the same local names under other prefixes)
 _XMP_FIELDS = {"RelativeAltitude": "relative_alt", "GimbalYawDegree": "gimbal_yaw",
-               "GimbalPitchDegree": "gimbal_pitch", "GimbalRollDegree": "gimbal_roll"}
+               "GimbalPitchDegree": "gimbal_pitch", "GimbalRollDegree": "gimbal_roll",
+               "RtkStdLon": "rtk_std_lon", "RtkStdLat": "rtk_std_lat"}
 _XMP_NAMES = "|".join(_XMP_FIELDS)
 _XMP_ATTRIBUTE = re.compile(rf'[\w.-]+:({_XMP_NAMES})\s*=\s*["\']([^"\']*)["\']')
 _XMP_ELEMENT = re.compile(rf"<[\w.-]+:({_XMP_NAMES})>\s*([^<]*?)\s*</")
@@ -43,6 +44,8 @@ class GpsTag:
     gimbal_yaw: float | None = None  # XMP (drones): camera gimbal angles
     gimbal_pitch: float | None = None
     gimbal_roll: float | None = None
+    rtk_std_lon: float | None = None  # XMP (RTK drones): standard deviation of the position, metres
+    rtk_std_lat: float | None = None
 
 
 def read_gps(exif, xmp: bytes | str | None, source: str) -> GpsTag | None:

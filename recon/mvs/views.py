@@ -9,8 +9,7 @@ p99 * (1 + margin).
 
 ``keep`` gives views their sources of an earlier run (photos added to a workspace): a view keeps
 them while every one of them still qualifies as a source and its ``reselect_top`` best-scoring
-sources now are among them, so that its depth map can be reused (:mod:`recon.mvs.reuse`) rather
-than recomputed because a new photo now ranks somewhere among its eight.
+sources now are among them, so that its final maps can be reused (:mod:`recon.mvs.reuse`).
 """
 
 from __future__ import annotations

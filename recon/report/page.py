@@ -252,6 +252,12 @@ def _georef_section(georef: dict, model: gather.Model | None, figure) -> str:
     out = [f'<div class="kpis">{"".join(kpis)}</div>']
     out.append(f'<p class="muted">Frame: {_e(georef.get("crs") or "as the mapper left it, up along +Z")}.'
                + (f" Not georeferenced: {_e(georef['reason'])}." if georef.get("reason") else "") + "</p>")
+    prior = georef.get("gps_prior")
+    if prior:
+        out.append('<p id="gps-prior">GPS prior bundle adjustment: '
+                   + (f"done with {prior['photos']} photos ({_e(prior['why'])}); mean reprojection error "
+                      f"{prior['reprojection_error_px']['before']:.3f} -> {prior['reprojection_error_px']['after']:.3f} px"
+                      if prior["used"] else f"not done: {_e(prior['why'])}") + ".</p>")
     photos = georef.get("photos") or []
     if georef.get("georeferenced") and model is not None:
         out.append('<div class="plots">' + figure(plots.enu_map(model.centers, photos, (gcp or {}).get("points", [])),

@@ -3,7 +3,9 @@
 The surface is welded (the glTF splits vertices along texture seams), decimated by quadric edge
 collapse (:func:`recon.surface.cleanup.decimate`) and charted afresh by xatlas; its texture is baked
 from textured.glb's atlas at the nearest point of the full surface (open3d's closest-point query),
-at most ``texture`` texels a side, and stored as JPEG. The copy stays in textured.glb's frame.
+at most ``texture`` texels a side and about as many texels in charts as the source atlas has (a larger
+copy shows no more detail and costs bake time: 2048 x 1951 texels baked from an 884 x 884 atlas took 5 of the
+report's 14 s), and stored as JPEG. The copy stays in textured.glb's frame.
 """
 
 from __future__ import annotations
@@ -14,6 +16,9 @@ import logging
 import numpy as np
 
 log = logging.getLogger(__name__)
+
+#: the copy's atlas side over the source's (sqrt of its texels): xatlas fills about 67 % of an atlas
+_PADDED = 1.25
 
 
 def page_model(glb: bytes, max_faces: int, texture: int) -> bytes:
@@ -31,8 +36,10 @@ def page_model(glb: bytes, max_faces: int, texture: int) -> bytes:
     image = getattr(source_material, "baseColorTexture", None)
     if full.visual.kind != "texture" or image is None:  # nothing to bake: the geometry alone
         return small.export(file_type="glb")
-    vertices, faces, uv, size = _charts(np.asarray(small.vertices), np.asarray(small.faces), texture)
-    atlas = _bake(vertices, faces, uv, size, full, np.asarray(image.convert("RGB")))
+    source_image = np.asarray(image.convert("RGB"))
+    side = min(texture, int(_PADDED * np.sqrt(source_image.shape[0] * source_image.shape[1])))
+    vertices, faces, uv, size = _charts(np.asarray(small.vertices), np.asarray(small.faces), side)
+    atlas = _bake(vertices, faces, uv, size, full, source_image)
     material = trimesh.visual.material.PBRMaterial(baseColorTexture=_jpeg(atlas), metallicFactor=0.0,
                                                    roughnessFactor=1.0,
                                                    doubleSided=bool(getattr(source_material, "doubleSided", False)))

@@ -21,6 +21,7 @@ from recon.geometry.georef import CHI3_99, Alignment, GeorefError, align_to_cont
 from recon.geometry.gps import enu_from_wgs84, wgs84_from_enu
 from recon.geometry.scale import fit_scale
 from recon.geometry.transforms import Similarity
+from recon.sparse import gps_prior
 from recon.sparse.control import ControlError, ScaleBar, triangulate
 
 log = logging.getLogger(__name__)
@@ -44,11 +45,13 @@ def gps_positions(images: list[dict]) -> dict[str, dict]:
 
 
 def gps_sigma(tag: dict, override: float) -> float:
-    """A photo's GPS accuracy in metres: ``override`` when > 0, else its GPSHPositioningError, else its
-    GPSDOP read as metres (phones write their accuracy there), else DEFAULT_GPS_SIGMA."""
+    """A photo's GPS accuracy in metres: ``override`` when > 0, else its GPSHPositioningError, else the
+    larger of an RTK drone's XMP RtkStdLon / RtkStdLat, else its GPSDOP read as metres (phones write
+    their accuracy there), else DEFAULT_GPS_SIGMA."""
     if override > 0:
         return override
-    return float(tag.get("horizontal_error") or tag.get("dop") or DEFAULT_GPS_SIGMA)
+    rtk = max(tag.get("rtk_std_lon") or 0.0, tag.get("rtk_std_lat") or 0.0)
+    return float(tag.get("horizontal_error") or rtk or tag.get("dop") or DEFAULT_GPS_SIGMA)
 
 
 def median_origin(tags: list[dict]) -> tuple[float, float, float]:
@@ -66,17 +69,22 @@ class _Fit:
     alignment: Alignment
 
 
-def georeference(models: list, gps: dict[str, dict], *, sigma: float = 0.0, seed: int = 0) -> dict:
+def georeference(models: list, gps: dict[str, dict], *, sigma: float = 0.0, seed: int = 0,
+                 prior: str | None = "off", ba_options=None) -> dict:
     """Transform ``models`` (pycolmap Reconstructions, largest first) in place into the local ENU frame,
     each that its photos' GPS positions ``gps`` (name -> gps record) fix; returns georeference.json.
 
     The first model is aligned when at least 3 of its photos, and more than half, have GPS; the others
     only then, into the same frame. ``sigma`` > 0 replaces every photo's GPS accuracy (metres).
+    ``prior`` (auto / on / off; None: a continued model, whose photos keep their poses) says whether
+    the first model is then bundle-adjusted with its inlier photos' GPS positions as priors
+    (:mod:`recon.sparse.gps_prior`), with ``ba_options`` (pycolmap BundleAdjustmentOptions).
     Keys: ``georeferenced`` and ``reason`` (why not), ``crs``, ``origin`` (lat, lon, alt),
-    ``altitude``, ``model_to_enu`` (scale, rotation, translation), ``residuals_m`` (median, p90 of
-    the inliers), ``scale_relative_std`` and ``position_std_m`` (bootstrap), ``outliers``,
-    ``photos`` (per photo with GPS: its position, the camera centre in the frame, the residual),
-    ``without_gps``, ``other_models``.
+    ``altitude``, ``model_to_enu`` (scale, rotation, translation), ``gps_prior`` (used, why, and
+    the reprojection error before and after), ``residuals_m`` (median, p90 of the inliers),
+    ``scale_relative_std`` and ``position_std_m`` (bootstrap), ``outliers``, ``photos`` (per photo
+    with GPS: its position, the camera centre in the frame, the residual), ``without_gps``,
+    ``other_models``.
     """
     if not models:
         return {"georeferenced": False, "reason": "no model was built"}
@@ -93,12 +101,20 @@ def georeference(models: list, gps: dict[str, dict], *, sigma: float = 0.0, seed
     except GeorefError as exc:
         return {"georeferenced": False, "reason": f"GPS cannot place the model: {exc}"}
     _transform(main, fit.alignment.similarity)
+    placed = fit.alignment.similarity
+    adjusted = _gps_prior(main, fit, prior, ba_options)
+    if adjusted["used"]:  # the residuals after the adjustment, and the little move they still ask
+        fit = _align(main, gps, origin, sigma, seed)
+        _transform(main, fit.alignment.similarity)
+        placed = _compose(fit.alignment.similarity, placed)
     result = {
         "georeferenced": True,
         "crs": CRS,
         "origin": dict(zip(("lat", "lon", "alt"), origin)),
         "altitude": ALTITUDE_NOTE,
         **_summary(fit, sigma),
+        "model_to_enu": _similarity_record(placed),
+        "gps_prior": adjusted,
         "photos": [_photo_record(fit, k, gps[name]) for k, name in enumerate(fit.names)],
         "without_gps": sorted(set(names) - set(tagged)),
         "other_models": [],
@@ -123,6 +139,21 @@ def _align(model, gps: dict[str, dict], origin, sigma: float, seed: int) -> _Fit
                           f"within {CHI3_99:.1f} x their GPS accuracy; if the GPS is worse than its tags say, "
                           "set sfm.gps_sigma (metres)")
     return _Fit(names, enu, alignment)
+
+
+def _gps_prior(model, fit: _Fit, mode: str | None, ba_options) -> dict:
+    """Bundle-adjust ``model`` with its inlier photos' GPS positions as priors when ``mode`` asks for it
+    (:func:`recon.sparse.gps_prior.decide`); what was done."""
+    if mode is None:
+        return {"used": False, "why": "a continued model keeps its photos' poses"}
+    inliers = fit.alignment.inliers
+    sigmas = fit.alignment.thresholds[inliers] / CHI3_99
+    used, why = gps_prior.decide(mode, sigmas)
+    record = {"used": used, "why": why}
+    if used:
+        names = [name for name, ok in zip(fit.names, inliers, strict=True) if ok]
+        record.update(gps_prior.adjust(model, names, fit.gps_enu[inliers], sigmas, ba_options))
+    return record
 
 
 def _transform(model, sim: Similarity) -> None:
@@ -165,10 +196,10 @@ def _georeference_other(model, gps, origin, sigma: float, seed: int) -> dict:
 
 def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed: int = 0,
           gcps: GcpList | None = None, gcp_sigma: float = DEFAULT_GCP_SIGMA,
-          scale_bars: Sequence[ScaleBar] = ()) -> dict:
+          scale_bars: Sequence[ScaleBar] = (), prior: str | None = "off", ba_options=None) -> dict:
     """Put ``models`` (largest first) in metres, in place, from what the user has: the photos' GPS
-    (``gps``; None: not used), ground control points (``gcps``, the first model), scale bars (the
-    first model); returns georeference.json, whose ``scale_source`` says which fixed the scale
+    (``gps``; None: not used; ``prior``, ``ba_options``: :func:`georeference`), ground control points
+    (``gcps``, the first model), scale bars (the first model); returns georeference.json, whose ``scale_source`` says which fixed the scale
     ("GCP", "scale bar", "GPS" or "none").
 
     GCPs, far more accurate than phone or drone GPS, move the model to them, jointly with the GPS
@@ -188,7 +219,7 @@ def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed
     elif not gps:
         result = {"georeferenced": False, "reason": "no photo has a GPS position with altitude in its EXIF"}
     else:
-        result = georeference(models, gps, sigma=sigma, seed=seed)
+        result = georeference(models, gps, sigma=sigma, seed=seed, prior=prior, ba_options=ba_options)
     result["scale_source"] = "GPS" if result["georeferenced"] else "none"
     if models and gcps is not None:
         _apply_gcps(models[0], result, gcps, gcp_sigma)

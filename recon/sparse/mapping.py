@@ -228,6 +228,13 @@ def final_bundle_adjustment(rec, cfg):
 def _bundle_adjust(rec, cfg, principal_point: bool) -> None:
     import pycolmap
 
+    pycolmap.bundle_adjustment(rec, ba_options(cfg, principal_point))
+
+
+def ba_options(cfg, principal_point: bool):
+    """The options of a last global bundle adjustment (robust loss; what it refines from ``cfg``)."""
+    import pycolmap
+
     opts = pycolmap.BundleAdjustmentOptions()
     opts.refine_focal_length = cfg.refine_focal_length
     opts.refine_principal_point = principal_point
@@ -237,7 +244,7 @@ def _bundle_adjust(rec, cfg, principal_point: bool) -> None:
     opts.ceres.solver_options.max_num_iterations = cfg.final_ba_iterations
     opts.ceres.solver_options.function_tolerance = 1e-6
     opts.ceres.solver_options.num_threads = _threads(cfg)
-    pycolmap.bundle_adjustment(rec, opts)
+    return opts
 
 
 def registration_report(database: Path, models: list, min_matches: int, init_min_tri_angle: float = 16.0,

@@ -77,6 +77,11 @@ class SfmConfig:
     scale_bars: list[ScaleBar] = opt([], "known distances between two points each marked in two photos or more "
                                          "({length: metres, a: [{photo, x, y}, ...], b: [...]}): they set the "
                                          "model's scale (without GCPs), or check it")
+    gps_prior: Literal["auto", "on", "off"] = opt(
+        "auto", "a last bundle adjustment with the GPS positions as priors (georeferenced models): auto = when the "
+                "photos' GPS accuracy is 0.5 m or better (RTK / PPK; sfm.gps_sigma, else their tags), where it "
+                "straightens the bowl a nadir block bends into; coarser GPS bends it further (measured: "
+                "recon.sparse.gps_prior)")
     continue_from_previous: bool = opt(
         True, "incremental mapper: when photos were added, continue the workspace's previous model (same sfm "
               "options, all its photos still there with the same features; their poses kept fixed) and keep its "
@@ -115,7 +120,7 @@ class Sfm(Stage):
         if not models:
             raise StageError(f"sfm: no model could be built. {report['reason']}")
         kept = _keep_frame(ctx, models, previous) if start is not None else None
-        georef = _georeference(ctx, cfg, models, listing["images"])
+        georef = _georeference(ctx, cfg, models, listing["images"], continued=start is not None)
         report["frame"] = _level(models, georef, kept)
         report["mapping"] = ({"continued_from": previous_key[:16], "previous_photos": start.num_reg_images()}
                              if start is not None else "from scratch")
@@ -219,15 +224,17 @@ def _gcp_file(ctx: StageContext, cfg: SfmConfig) -> Path | None:
                          "give an OpenDroneMap gcp_list.txt (format: README, 'Metric scale and ground control')")
 
 
-def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[dict]) -> dict:
-    """Put the models in metres in place (GPS: sfm.georeference; sfm.gcp_file; sfm.scale_bars) and log
-    what was done; georeference.json."""
+def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[dict], continued: bool) -> dict:
+    """Put the models in metres in place (GPS: sfm.georeference, sfm.gps_prior unless the model was
+    ``continued``; sfm.gcp_file; sfm.scale_bars) and log what was done; georeference.json."""
     gps = georeference.gps_positions(images) if cfg.georeference == "auto" else None
     path = _gcp_file(ctx, cfg)
     try:
         gcps = None if path is None else read_gcp_list(path)
         result = georeference.place(models, gps, sigma=cfg.gps_sigma, seed=ctx.seed, gcps=gcps,
-                                    gcp_sigma=cfg.gcp_sigma, scale_bars=cfg.scale_bars)
+                                    gcp_sigma=cfg.gcp_sigma, scale_bars=cfg.scale_bars,
+                                    prior=None if continued else cfg.gps_prior,
+                                    ba_options=mapping.ba_options(cfg, principal_point=False))
     except GcpFileError as exc:
         raise StageError(f"sfm.gcp_file: {exc}") from None
     except ControlError as exc:  # it names the option at fault
@@ -243,6 +250,13 @@ def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[
     ctx.log.info("sfm: georeferenced in local ENU metres around lat %.6f, lon %.6f: GPS residuals median %.2f m, "
                  "90th percentile %.2f m; scale uncertainty %s", origin["lat"], origin["lon"], residuals["median"],
                  residuals["p90"], "unknown (3 photos)" if scale_std is None else f"{100 * scale_std:.2f} %")
+    prior = result["gps_prior"]
+    if prior["used"]:
+        error = prior["reprojection_error_px"]
+        ctx.log.info("sfm: bundle adjustment with the GPS of %d photos as priors (%s): mean reprojection error "
+                     "%.3f -> %.3f px", prior["photos"], prior["why"], error["before"], error["after"])
+    else:
+        ctx.log.info("sfm: no GPS prior bundle adjustment: %s", prior["why"])
     if result["outliers"]:
         ctx.log.warning("sfm: GPS of %d photo(s) disagrees with the model (left out of the fit): %s",
                         len(result["outliers"]), ", ".join(result["outliers"]))

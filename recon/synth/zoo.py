@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import difflib
 import functools
+import hashlib
 import zlib
 from collections.abc import Callable
 from pathlib import Path
@@ -76,6 +77,21 @@ def zoo_setup(name: str) -> zs.Setup:
         hint = f"; did you mean {close[0]!r}?" if close else ""
         raise UnknownScene(f"unknown zoo scene {name!r}{hint} (`recon synth --list` lists them)")
     return SCENES[name][1](np.random.default_rng(zlib.crc32(name.encode())))
+
+
+def zoo_digest(name: str) -> str:
+    """A fingerprint of what scene ``name`` is made of (geometry, textures, layout, capture): it changes
+    whenever the scene's definition does, so a rendering made before can be told stale."""
+    setup = zoo_setup(name)
+    digest = hashlib.sha256()
+    for part in (*setup.parts, *setup.transient):
+        for array in (part.vertices, part.faces, part.uv, part.texture.levels[0]):
+            digest.update(np.ascontiguousarray(array).tobytes())
+    background = setup.background
+    digest.update(repr((setup.layout, setup.views, setup.holdout, setup.focal_factor, setup.effects,
+                        setup.jpeg_quality, setup.transient_span, sorted(setup.masked), setup.gps_sigma,
+                        getattr(background, "__name__", None) or np.asarray(background).tolist())).encode())
+    return digest.hexdigest()[:16]
 
 
 def render_zoo(name: str, out_dir: str | Path, views: int | None = None, width: int = 640, height: int = 480,

@@ -3,7 +3,10 @@
 Units are metres, z up. Texture densities (texels per metre) are set for about two texels per
 pixel at 640x480 from the cameras' distance, so the mip-mapped lookups stay sharp and alias-free.
 Geometry and textures are fixed per scene (their own seeded generator); the render's seed moves
-only the cameras' jitter and the photo effects.
+only the cameras' jitter and the photo effects. A ground (or any surface photos see from opposite
+sides) gets a texture large enough not to repeat across it: a tiled one makes different places look
+alike, and the false matches between them broke the mapper on three scenes (plain_boxes: 41 % of the
+verified matches false, cameras 50 degrees off; tests/synth/test_zoo_false_pairs.py).
 """
 
 from __future__ import annotations
@@ -143,7 +146,8 @@ def courtyard(rng: np.random.Generator) -> Setup:
     d = 160.0
     brick = photo_tex("brick", 512, 512, tint=(1.05, 0.82, 0.66))
     plaster_cap = tex(mottled(256, 256, [(196, 190, 176), (150, 146, 138)], rng, 0.3))
-    paving = tex(tiles(512, 512, rng, 64, [(150, 140, 128), (120, 116, 110), (170, 160, 140)], spread=0.08))
+    # 1600 texels: the 10 m ground without a repeat (repeats matched photos of different places)
+    paving = tex(tiles(1600, 1600, rng, 64, [(150, 140, 128), (120, 116, 110), (170, 160, 140)], spread=0.08))
     stone = photo_tex("moon", 256, 256, tint=(1.0, 0.97, 0.9))
     u_shape = np.array([[-2.0, 0.0], [-1.2, 0.0], [-1.2, 1.0], [1.2, 1.0], [1.2, 0.0], [2.0, 0.0], [2.0, 1.8],
                         [-2.0, 1.8]])
@@ -160,7 +164,8 @@ def courtyard(rng: np.random.Generator) -> Setup:
 
 def plain_boxes(rng: np.random.Generator) -> Setup:
     d = 200.0
-    concrete = tex(mottled(512, 512, [(150, 148, 142), (118, 116, 112)], rng, 0.12, beta=0.9))
+    # 1536 texels: the 7 m floor without a repeat (a tiled 512 made every pair of opposite photos match)
+    concrete = tex(mottled(1536, 1536, [(150, 148, 142), (118, 116, 112)], rng, 0.12, beta=0.9))
     colours = [(205, 196, 178), (168, 188, 206), (214, 204, 160), (186, 160, 150)]
     flat = [tex(plaster(256, 256, c, 1.2, rng)) for c in colours]
     stained = tex(plaster(256, 256, (190, 178, 160), 5.0, rng, beta=1.8))
@@ -174,7 +179,8 @@ def plain_boxes(rng: np.random.Generator) -> Setup:
 
 
 def turntable_black(rng: np.random.Generator) -> Setup:
-    marble = np.clip(np.abs(noise(256, 256, rng, 1.3)) * 40, 0, 80)
+    # once round the pedestal (2 m at 600 texels/m): a tiled 256 gave its four sides one look
+    marble = np.clip(np.abs(noise(1280, 512, rng, 1.3)) * 40, 0, 80)
     marble_tex = tex(to_rgb(np.array([226, 222, 214], np.float32) - marble[..., None] * [1.0, 1.0, 0.9]))
     vase = [(0.0, 0.8), (0.16, 0.8), (0.2, 0.86), (0.24, 0.98), (0.22, 1.1), (0.12, 1.22), (0.09, 1.3),
             (0.12, 1.38), (0.0, 1.38)]
@@ -201,7 +207,7 @@ def far_field(rng: np.random.Generator) -> Setup:
 
 def fence_poles(rng: np.random.Generator) -> Setup:
     d = 300.0
-    dirt = tex(mottled(512, 512, [(122, 104, 80), (96, 110, 70)], rng, 0.3, beta=0.9))
+    dirt = tex(mottled(1088, 1088, [(122, 104, 80), (96, 110, 70)], rng, 0.3, beta=0.9))  # 7 m, no repeat
     post = tex(planks(128, 128, rng, (118, 84, 56), 32))
     rust = tex(mottled(128, 128, [(150, 84, 46), (90, 84, 80)], rng, 0.3, beta=0.8))
     wall = tex(bricks(512, 256, rng, (64, 32), 3, (170, 150, 120), 0.15))
@@ -222,7 +228,7 @@ def fence_poles(rng: np.random.Generator) -> Setup:
 
 
 def clutter(rng: np.random.Generator) -> Setup:
-    floor = tex(tiles(512, 512, rng, 64, [(170, 60, 50), (60, 110, 150), (210, 190, 90), (70, 140, 80)],
+    floor = tex(tiles(1024, 1024, rng, 64, [(170, 60, 50), (60, 110, 150), (210, 190, 90), (70, 140, 80)],  # 5 m
                       spread=0.06))
     sources = [grid_cells(photo(n), 2, 2, (128, 128)) for n in ("text", "clock", "colorwheel", "page", "coins",
                                                                  "logo", "hubble_deep_field")]
@@ -253,7 +259,8 @@ def clutter(rng: np.random.Generator) -> Setup:
 
 
 def exposure_wb(rng: np.random.Generator) -> Setup:
-    cobbles = tex(tiles(512, 512, rng, 32, [(128, 122, 114), (104, 100, 96), (150, 140, 126)], grout=4,
+    # 1536 texels: the 7 m ground without a repeat (a tiled 512 matched photos from opposite sides)
+    cobbles = tex(tiles(1536, 1536, rng, 32, [(128, 122, 114), (104, 100, 96), (150, 140, 126)], grout=4,
                         spread=0.12))
     rocket = grid_cells(photo("rocket"), 3, 2, (256, 256))
     retina = photo_tex("retina", 512, 256)
@@ -268,7 +275,7 @@ def exposure_wb(rng: np.random.Generator) -> Setup:
 
 
 def noisy_phone(rng: np.random.Generator) -> Setup:
-    sand = tex(mottled(512, 512, [(196, 176, 140), (170, 150, 116)], rng, 0.25, beta=0.85))
+    sand = tex(mottled(1344, 1344, [(196, 176, 140), (170, 150, 116)], rng, 0.25, beta=0.85))  # 6 m, no repeat
     amphora = [(0.0, 0.0), (0.12, 0.0), (0.22, 0.12), (0.26, 0.3), (0.2, 0.5), (0.1, 0.62), (0.08, 0.72),
                (0.13, 0.78), (0.0, 0.78)]
     cells = grid_cells(photo("cell"), 2, 2, (256, 256))

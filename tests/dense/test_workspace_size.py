@@ -2,9 +2,9 @@
 (mvs's photometric maps, COLMAP's fused.ply.vis), the cache still checks out, and options keep them.
 
 Sizes count each file once (the item store hard-links the maps it keeps) and leave the photos out
-(ingest links them). A lean workspace's depth and normal maps take at most 20 bytes per working
-pixel: the final depth (4) and normal (12) maps, and the photometric depth (4) the item store keeps
-for later runs; keeping the photometric normal maps too makes it 32.
+(ingest links them). A lean workspace's depth and normal maps take at most 26 bytes per working
+pixel: the final depth (4) and normal (12) maps, and the photometric depth (4) and normals (float16,
+6) the item store keeps for later runs; keeping the photometric maps in mvs's output makes it 32 there.
 """
 
 from __future__ import annotations
@@ -26,9 +26,9 @@ SIZE = 240  # undistorted images and depth maps at most this many px
 QUICK = ["executor=serial", "sfm.deterministic=true", f"undistort.max_image_size={SIZE}",
          f"mvs.max_image_size={SIZE}", "mvs.pyramid_levels=2", "mvs.iterations=3", "mesh.depth=8",
          "mesh.target_faces=40000", "texture.max_faces=20000"]
-LEAN_MAP_BYTES = 4 + 12 + 4  # per working pixel: final depth and normal, photometric depth in the item store
+LEAN_MAP_BYTES = 4 + 12 + 4 + 6  # per working pixel: final depth and normal; photometric depth and normals in the store
 KEPT_OUTPUT_BYTES = 2 * (4 + 12)  # per working pixel, in mvs's output: final and photometric depth and normal
-HEADER = 64  # per map file, at most (COLMAP's "width&height&channels&")
+HEADER = 128  # per map file, at most (COLMAP's "width&height&channels&", NumPy's .npy header)
 OTHER_BYTES_PER_VIEW = 5 << 19  # 2.5 MiB: SIFT at 800 px in two databases, sparse model, cloud, mesh, texture, report
 MAPS = ("depth_maps", "normal_maps")
 
@@ -51,7 +51,7 @@ def size(paths: list[Path]) -> int:
 
 def is_map(path: Path) -> bool:
     """A depth or normal map: in a stage's stereo folder or in the item store."""
-    return path.suffix == ".bin" and (path.parent.name in MAPS or "mvs" in path.parts)
+    return path.suffix == ".bin" and path.parent.name in MAPS or path.suffix in (".bin", ".npy") and "mvs" in path.parts
 
 
 def working_pixels(ws: Path) -> int:

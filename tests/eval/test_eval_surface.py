@@ -105,3 +105,15 @@ def test_observed_points_are_on_the_surface_and_thinned(scene, gt_mesh):
     # one point per voxel: no two points share a voxel
     keys = np.floor(pts / spacing).astype(np.int64)
     assert len(np.unique(keys, axis=0)) == len(pts)
+
+
+def test_object_metrics_take_a_point_cloud_too():
+    from recon.eval.surface import object_metrics
+
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
+    on_it = sample_mesh(ball.vertices, ball.faces, 0.002, seed=3)
+    m = object_metrics(on_it, ball)
+    assert m["accuracy@0.002"] > 99.9 and m["completeness@0.002"] > 99.0
+    half = on_it[on_it[:, 2] > 0]
+    m = object_metrics(np.concatenate([half, half[:1000] + [2.0, 0, 0]]), ball)  # half of it, and a stray piece
+    assert 45 < m["completeness@0.002"] < 55 and m["accuracy@0.002"] < 100 * len(half) / (len(half) + 999)

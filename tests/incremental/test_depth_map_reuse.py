@@ -90,32 +90,50 @@ def test_a_forced_mvs_reuses_no_depth_map(mvs_workspace, small_scene, tmp_path):
     assert result.summaries["mvs"]["reused"] == 0 and result.summaries["mvs"]["computed"] == 16
 
 
-@pytest.mark.slow
-def test_added_photos_cost_their_own_depth_maps(small_scene, tmp_path):
-    """12 photos to depth maps, then the 4 others added and the same command run again: sfm keeps the
-    12 poses, the 12 views keep their sources (``reselect_top: 0``: even where a new view now ranks
-    among their best), so their maps are reused (the same files) and only the new views' maps are
-    computed."""
+def _twelve_then_sixteen(small_scene, tmp_path, reselect_top: int):
+    """12 photos to depth maps, then the 4 others added and the same command run again: the second
+    run's summaries, its views.json, the photos added, the first run's final depth maps (bytes)
+    and the second run's."""
     images, ws = tmp_path / "images", tmp_path / "ws"
     images.mkdir()
     photos = sorted((small_scene / "images").iterdir())
     for photo in photos[:12]:
         shutil.copy(photo, images)
     first = recon.run(SPARSE, overrides=["until=mvs"], images=str(images), workspace=str(ws), executor="serial",
-                      undistort={"max_image_size": 240}, mvs={**MVS, "reselect_top": 0})
+                      undistort={"max_image_size": 240}, mvs={**MVS, "reselect_top": reselect_top})
     assert first.summaries["mvs"]["computed"] == 12
     (before,) = manifests(ws, "mvs")
     kept = {n: p.read_bytes() for n, p in depth_maps(ws, before).items()}
     for photo in photos[12:]:
         shutil.copy(photo, images)
     result = recon.run(SPARSE, overrides=["until=mvs"], images=str(images), workspace=str(ws), executor="serial",
-                       undistort={"max_image_size": 240}, mvs={**MVS, "reselect_top": 0})
+                       undistort={"max_image_size": 240}, mvs={**MVS, "reselect_top": reselect_top})
     assert result.summaries["sfm"]["mapping"] == "continued" and result.summaries["sfm"]["registered"] == 16
-    s = result.summaries["mvs"]
-    assert s["views"] == 16 and s["reused"] + s["computed"] == 16 and s["reused"] >= 10, s
     _, after = manifests(ws, "mvs")
     views = read_json(ws / ".recon" / "cache" / "mvs" / after["key"][:16] / "views.json")
-    assert not any(views[p.name]["reused"] for p in photos[12:])
-    maps = depth_maps(ws, after)
+    return result.summaries["mvs"], views, [p.name for p in photos[12:]], kept, depth_maps(ws, after)
+
+
+@pytest.mark.slow
+def test_added_photos_cost_their_own_depth_maps(small_scene, tmp_path):
+    """sfm keeps the 12 poses, the 12 views keep their sources (``reselect_top: 0``: even where a new
+    view now ranks among their best), so their maps are reused (the same files) and only the new
+    views' maps are computed."""
+    s, views, added, kept, maps = _twelve_then_sixteen(small_scene, tmp_path, reselect_top=0)
+    assert s["views"] == 16 and s["reused"] + s["computed"] == 16 and s["reused"] >= 10, s
+    assert not any(views[n]["reused"] for n in added)
     reused = [n for n, v in views.items() if v["reused"]]
     assert all(maps[f"{n}.geometric.bin"].read_bytes() == kept[f"{n}.geometric.bin"] for n in reused)
+
+
+@pytest.mark.slow
+def test_views_with_new_sources_rerun_only_the_geometric_pass(small_scene, tmp_path):
+    """With the default ``reselect_top`` (8), a view whose best sources a new photo changes takes them
+    but starts from the photometric maps its earlier ones gave: the photometric pass runs for the new
+    photos only, and those views' final maps are new files."""
+    s, views, added, kept, maps = _twelve_then_sixteen(small_scene, tmp_path, reselect_top=8)
+    changed = [n for n, v in views.items() if not v["reused"] and n not in added]
+    assert changed and s["photometric_computed"] == len(added) and s["photometric_reused"] == len(changed), s
+    assert all(views[n]["photometric_reused"] and set(added) & set(views[n]["sources"]) for n in changed)
+    assert not any(views[n]["photometric_reused"] for n in added)
+    assert all(maps[f"{n}.geometric.bin"].read_bytes() != kept[f"{n}.geometric.bin"] for n in changed)

@@ -37,4 +37,14 @@ def test_bench_runs_a_tiny_scene_end_to_end(tmp_path, capsys):
     assert "error" not in row, row.get("error")
     assert row["registered"] >= 8 and 0.0 < row["fused"]["F@0.005"] <= 1.0 and 0.0 < row["coverage"] <= 1.0
     assert row["psnr"] > 10 and {"mvs", "texture"} <= set(row["seconds"])
+    assert 0.0 <= row["pose_auc@5"] <= 1.0 and 0.0 < row["depth"]["completeness@0.002"] <= 1.0
     assert "turntable_black" in capsys.readouterr().out
+
+
+def test_a_rendering_of_an_earlier_scene_definition_is_rendered_again(tmp_path):
+    root = tmp_path / "turntable_black" / "scene"
+    first = quality_bench.scene_for("turntable_black", root, 80, 60, 3)
+    written = first.scene_json.stat().st_mtime_ns
+    assert quality_bench.scene_for("turntable_black", root, 80, 60, 3).scene_json.stat().st_mtime_ns == written
+    root.with_name("scene.digest").write_text("an earlier definition")
+    assert quality_bench.scene_for("turntable_black", root, 80, 60, 3).scene_json.stat().st_mtime_ns != written
