@@ -21,6 +21,7 @@ from recon.geometry.georef import CHI3_99, Alignment, GeorefError, align_to_cont
 from recon.geometry.gps import enu_from_wgs84, wgs84_from_enu
 from recon.geometry.scale import fit_scale
 from recon.geometry.transforms import Similarity
+from recon.geometry.utm import enu_to_utm
 from recon.sparse import gps_prior
 from recon.sparse.control import ControlError, ScaleBar, triangulate
 
@@ -196,7 +197,8 @@ def _georeference_other(model, gps, origin, sigma: float, seed: int) -> dict:
 
 def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed: int = 0,
           gcps: GcpList | None = None, gcp_sigma: float = DEFAULT_GCP_SIGMA,
-          scale_bars: Sequence[ScaleBar] = (), prior: str | None = "off", ba_options=None) -> dict:
+          scale_bars: Sequence[ScaleBar] = (), prior: str | None = "off", ba_options=None,
+          crs: str = "enu") -> dict:
     """Put ``models`` (largest first) in metres, in place, from what the user has: the photos' GPS
     (``gps``; None: not used; ``prior``, ``ba_options``: :func:`georeference`), ground control points
     (``gcps``, the first model), scale bars (the first model); returns georeference.json, whose ``scale_source`` says which fixed the scale
@@ -213,6 +215,10 @@ def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed
     leave-one-out check in metres, outliers, GCPs not used and why); ``scale_bars`` (per bar its
     length and its length in the model); ``model_scale`` (the scale applied to a model that stays
     in the mapper's frame); ``gps`` (why GPS was not used when GCPs placed the model).
+
+    ``crs`` "utm": a model placed on the Earth ends in its UTM zone minus whole kilometres instead of
+    local ENU (``utm``: zone, EPSG code, offset, the ENU-to-frame similarity and its largest error);
+    the per-photo and per-GCP ``*_enu`` positions stay in the local ENU frame.
     """
     if gps is None:
         result = {"georeferenced": False, "reason": "sfm.georeference is off"}
@@ -225,7 +231,31 @@ def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed
         _apply_gcps(models[0], result, gcps, gcp_sigma)
     if models and scale_bars:
         _apply_scale_bars(models[0], result, scale_bars)
+    if crs == "utm":
+        _to_utm(models, result)
     return result
+
+
+def _to_utm(models: list, result: dict) -> None:
+    """Move the models placed on the Earth from local ENU into their UTM zone minus whole kilometres
+    (:mod:`recon.geometry.utm`); the ``utm`` record, or why the frame stays as it is."""
+    if not result["georeferenced"] or result.get("origin") is None:
+        where = "its GCPs are in a local frame" if result["georeferenced"] else result["reason"]
+        result["utm"] = {"used": False, "why": f"the model is not placed on the Earth ({where})"}
+        return
+    placed = [models[0]] + [models[o["model"]] for o in result.get("other_models", []) if o["georeferenced"]]
+    origin = tuple(result["origin"][k] for k in ("lat", "lon", "alt"))
+    frame = enu_to_utm(origin, np.concatenate([np.array(list(_centres(m).values())) for m in placed]))
+    for model in placed:
+        _transform(model, frame.from_enu)
+    result["crs"] = (f"EPSG:{frame.epsg} (WGS 84 / UTM zone {frame.zone}): x easting, y northing, z height, "
+                     f"metres, minus the offset {list(frame.offset)}")
+    result["utm"] = {"used": True, "epsg": frame.epsg, "zone": frame.zone, "offset": list(frame.offset),
+                     "enu_to_frame": {**_similarity_record(frame.from_enu),
+                                      "maps": "x_frame = scale * rotation @ x_enu + translation"},
+                     "max_error_m": frame.max_error_m,
+                     "what": "UTM coordinates = frame coordinates + offset; max_error_m: the largest error of "
+                             "this similarity against pyproj's UTM over the capture's extent"}
 
 
 def _apply_gcps(model, result: dict, gcps: GcpList, gcp_sigma: float) -> None:

@@ -66,6 +66,10 @@ class SfmConfig:
         "auto", "auto: models in local East-North-Up metres when at least 3 registered photos, and more than "
                 "half, have EXIF GPS (robust fit to the GPS positions); off, or too little GPS: the photos' average "
                 "up along +Z, scale and position as the mapper left them")
+    crs: Literal["enu", "utm"] = opt(
+        "enu", "frame of a model placed on the Earth (GPS, or GCPs in a CRS): enu = local East-North-Up metres around "
+               "the origin; utm = its UTM zone (WGS 84), easting / northing / height minus whole kilometres "
+               "(georeference.json: zone, offset), as GIS tools take it")
     gps_sigma: float = opt(0.0, "GPS accuracy in metres for every photo (0: each photo's GPSHPositioningError, "
                                 "else GPSDOP, else 5 m); a photo farther than 3.4 sigma is an outlier", ge=0)
     gcp_file: str | None = opt(None, "ground control points: OpenDroneMap's gcp_list.txt (first line a CRS: EPSG:<code>, "
@@ -234,12 +238,18 @@ def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[
         result = georeference.place(models, gps, sigma=cfg.gps_sigma, seed=ctx.seed, gcps=gcps,
                                     gcp_sigma=cfg.gcp_sigma, scale_bars=cfg.scale_bars,
                                     prior=None if continued else cfg.gps_prior,
-                                    ba_options=mapping.ba_options(cfg, principal_point=False))
+                                    ba_options=mapping.ba_options(cfg, principal_point=False), crs=cfg.crs)
     except GcpFileError as exc:
         raise StageError(f"sfm.gcp_file: {exc}") from None
     except ControlError as exc:  # it names the option at fault
         raise StageError(f"sfm.{exc}") from None
     _log_control(ctx, result)
+    utm = result.get("utm")
+    if utm is not None and utm["used"]:
+        ctx.log.info("sfm: model in UTM zone %s (EPSG:%d) minus offset %s m (similarity error at most %.3f m)",
+                     utm["zone"], utm["epsg"], utm["offset"], utm["max_error_m"])
+    elif utm is not None:
+        ctx.log.warning("sfm: sfm.crs is utm but %s; the model stays in its own frame", utm["why"])
     if not result["georeferenced"]:
         if gps:
             ctx.log.warning("sfm: not georeferenced: %s", result["reason"])
@@ -247,7 +257,7 @@ def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[
     if result["scale_source"] == "GCP":
         return result
     origin, residuals, scale_std = result["origin"], result["residuals_m"], result["scale_relative_std"]
-    ctx.log.info("sfm: georeferenced in local ENU metres around lat %.6f, lon %.6f: GPS residuals median %.2f m, "
+    ctx.log.info("sfm: georeferenced in metres, origin lat %.6f, lon %.6f: GPS residuals median %.2f m, "
                  "90th percentile %.2f m; scale uncertainty %s", origin["lat"], origin["lon"], residuals["median"],
                  residuals["p90"], "unknown (3 photos)" if scale_std is None else f"{100 * scale_std:.2f} %")
     prior = result["gps_prior"]

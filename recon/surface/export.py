@@ -3,6 +3,7 @@ vertex colours."""
 
 from __future__ import annotations
 
+import json
 import logging
 from pathlib import Path
 
@@ -19,15 +20,34 @@ log = logging.getLogger(__name__)
 Z_UP_TO_GLTF = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
 
 
-def write_glb(textured: TexturedMesh, path: str | Path) -> Path:
+def frame_record(georeference: dict | None) -> dict | None:
+    """What a mesh file records of its frame: the CRS, the WGS84 origin and the UTM offset from
+    georeference.json (None when the model is not placed on the Earth)."""
+    if not georeference or not georeference.get("georeferenced") or not georeference.get("origin"):
+        return None
+    record = {"crs": georeference["crs"], "origin_wgs84": georeference["origin"]}
+    utm = georeference.get("utm") or {}
+    if utm.get("used"):
+        record["utm_offset"] = utm["offset"]
+    return record
+
+
+def write_glb(textured: TexturedMesh, path: str | Path, frame: dict | None = None) -> Path:
     """A GLB holding the mesh, its UVs and the atlas (PNG) as the base colour texture, in glTF's
     Y-up frame; the material is double-sided where the surface is open (a viewer would otherwise
-    cull the back of every face seen from outside the captured side)."""
+    cull the back of every face seen from outside the captured side). ``frame``
+    (:func:`frame_record`) goes into the asset's ``extras.georeference``, with the axes."""
     path = Path(path)
     mesh = textured.to_trimesh()
     mesh.apply_transform(Z_UP_TO_GLTF)
     mesh.visual.material.doubleSided = not mesh.is_watertight
-    path.write_bytes(mesh.export(file_type="glb"))
+
+    def record_frame(tree: dict) -> None:
+        if frame is not None:
+            axes = "glTF Y up: glTF (x, y, z) = frame (x, z, -y)"
+            tree["asset"].setdefault("extras", {})["georeference"] = {**frame, "axes": axes}
+
+    path.write_bytes(mesh.export(file_type="glb", tree_postprocessor=record_frame))
     log.info("wrote %s (%d faces, %d x %d texture)", path, len(textured.faces), textured.texture.shape[1],
              textured.texture.shape[0])
     return path
@@ -40,8 +60,9 @@ def read_glb(path: str | Path) -> trimesh.Trimesh:
     return mesh
 
 
-def write_obj(textured: TexturedMesh, path: str | Path) -> Path:
-    """``<name>.obj`` with ``<name>.mtl`` and the atlas as ``<name>.png`` beside it; returns the OBJ's path."""
+def write_obj(textured: TexturedMesh, path: str | Path, frame: dict | None = None) -> Path:
+    """``<name>.obj`` with ``<name>.mtl`` and the atlas as ``<name>.png`` beside it, ``frame``
+    (:func:`frame_record`) as a comment line ``# georeference: {json}`` at the top; returns the OBJ's path."""
     path = Path(path)
     mesh = textured.to_trimesh()
     # white diffuse and ambient, no specular: viewers multiply map_Kd by Kd (trimesh's default is 0.4 grey)
@@ -52,6 +73,8 @@ def write_obj(textured: TexturedMesh, path: str | Path) -> Path:
                              mtl_name=f"{path.stem}.mtl")
     for name, data in files.items():
         (path.parent / name).write_bytes(data)
+    if frame is not None:
+        text = f"# georeference: {json.dumps(frame)}\n{text}"
     path.write_text(text)
     log.info("wrote %s with %s", path, ", ".join(sorted(files)))
     return path

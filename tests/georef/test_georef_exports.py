@@ -129,3 +129,7 @@ def test_every_export_is_in_the_gcp_frame(small_scene, copy_workspace, tmp_path)
     assert all(v < 0.15 for v in figures.values()), figures
     raw = trimesh.load(ws / "textured.glb", force="mesh").vertices  # as a glTF viewer sees it: Y up
     assert np.allclose(raw, trimesh.transform_points(clouds["textured.glb"], Z_UP_TO_GLTF), atol=1e-4)
+    glb = (ws / "textured.glb").read_bytes()  # the GLB and the OBJ name the frame and its origin
+    recorded = json.loads(glb[20:20 + int.from_bytes(glb[12:16], "little")])["asset"]["extras"]["georeference"]
+    obj = json.loads((ws / "textured.obj").read_text().splitlines()[0].removeprefix("# georeference: "))
+    assert recorded["origin_wgs84"] == obj["origin_wgs84"] == georef["origin"] and recorded["crs"] == georef["crs"]

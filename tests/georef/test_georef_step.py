@@ -10,7 +10,8 @@ import pytest
 
 from recon.geometry.gps import enu_from_wgs84, wgs84_from_enu
 from recon.geometry.transforms import Similarity, umeyama
-from recon.sparse.georeference import georeference
+from recon.geometry.utm import enu_to_utm, utm_zone
+from recon.sparse.georeference import georeference, place
 from recon.synth import load_scene
 
 ORIGIN = (-33.8568, 151.2153, 12.0)
@@ -99,3 +100,48 @@ def test_gps_that_contradicts_the_model_is_refused(small_scene, sparse_workspace
     result = georeference([model], gps, seed=0)
     assert not result["georeferenced"] and "sfm.gps_sigma" in result["reason"]
     assert georeference([model], gps, sigma=20.0, seed=0)["georeferenced"]  # told the real accuracy
+
+
+def test_utm_frame_puts_the_cameras_at_their_utm_coordinates(small_scene, sparse_workspace):
+    """sfm.crs utm: the camera centres land on their true positions as pyproj projects them to UTM
+    zone 56S (Sydney), less the recorded offset; without GPS the frame stays and says why."""
+    from pyproj import Transformer
+
+    model = _model(sparse_workspace)
+    gps, centres = _gps(small_scene)
+    result = place([model], gps, seed=0, crs="utm")
+    utm = result["utm"]
+    assert utm["used"] and utm["epsg"] == 32756 and utm["zone"] == "56S" and result["crs"].startswith("EPSG:32756")
+    assert all(v % 1000 == 0 for v in utm["offset"]) and utm["max_error_m"] < 0.01
+    lla = wgs84_from_enu(np.array([centres[n] for n in sorted(centres)]), ORIGIN)
+    easting, northing = Transformer.from_crs("EPSG:4326", "EPSG:32756", always_xy=True).transform(lla[:, 1], lla[:, 0])
+    true = np.column_stack([easting, northing, lla[:, 2]]) - np.asarray(utm["offset"])
+    found = {img.name: img.projection_center() for img in model.images.values() if img.has_pose}
+    error = np.linalg.norm(np.array([found[n] for n in sorted(centres)]) - true, axis=1)
+    assert np.median(error) < 1.0, np.median(error)
+    unplaced = place([_model(sparse_workspace)], None, crs="utm")
+    assert unplaced["utm"]["used"] is False and "not placed on the Earth" in unplaced["utm"]["why"]
+
+
+@pytest.mark.parametrize(("lat", "lon", "epsg", "zone"), [(52.52, 13.40, 32633, "33N"), (-33.86, 151.21, 32756, "56S"),
+                                                          (40.0, -179.9, 32601, "1N"), (0.0, 179.99, 32660, "60N")])
+def test_utm_zone(lat, lon, epsg, zone):
+    assert utm_zone(lat, lon) == (epsg, zone)
+
+
+def test_enu_to_utm_follows_pyproj_over_two_kilometres():
+    """The similarity stands in for pyproj's projection within centimetres over a 2 km survey at a
+    zone's edge (largest convergence and scale factor); off-grid points check it independently."""
+    from pyproj import Transformer
+
+    origin = (47.3, 11.95, 600.0)  # 2.95 deg east of zone 32's central meridian
+    extent = np.array([[-1000.0, -1000.0, -20.0], [1000.0, 1000.0, 80.0]])
+    frame = enu_to_utm(origin, extent)
+    assert frame.epsg == 32632 and frame.max_error_m < 0.2
+    assert 0.9996 < frame.from_enu.s < 1.0006  # the point scale factor
+    rng = np.random.default_rng(0)
+    enu = rng.uniform(extent[0], extent[1], (50, 3))
+    lla = wgs84_from_enu(enu, origin)
+    easting, northing = Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True).transform(lla[:, 1], lla[:, 0])
+    true = np.column_stack([easting, northing, lla[:, 2]]) - np.asarray(frame.offset)
+    assert np.abs(frame.from_enu.apply(enu) - true).max() < frame.max_error_m + 1e-6

@@ -50,3 +50,21 @@ def test_ply_has_vertex_colours(tmp_path, textured):
     loaded = trimesh.load(write_ply(textured, tmp_path / "mesh.ply"), process=False)
     assert len(loaded.faces) == len(textured.faces)
     assert np.array_equal(np.asarray(loaded.visual.vertex_colors)[:, :3], textured.vertex_colors)
+
+
+def test_glb_and_obj_record_the_georeferenced_frame(tmp_path, textured):
+    import json
+
+    from recon.surface.export import frame_record
+
+    georef = {"georeferenced": True, "crs": "EPSG:32633 (WGS 84 / UTM zone 33N): ...",
+              "origin": {"lat": 52.5, "lon": 13.4, "alt": 40.0}, "utm": {"used": True, "offset": [391000.0, 5820000.0, 0.0]}}
+    frame = frame_record(georef)
+    assert frame == {"crs": georef["crs"], "origin_wgs84": georef["origin"], "utm_offset": [391000.0, 5820000.0, 0.0]}
+    assert frame_record({"georeferenced": False, "reason": "no GPS"}) is None
+    glb = write_glb(textured, tmp_path / "textured.glb", frame).read_bytes()
+    header = json.loads(glb[20:20 + int.from_bytes(glb[12:16], "little")])
+    assert header["asset"]["extras"]["georeference"] == {**frame, "axes": "glTF Y up: glTF (x, y, z) = frame (x, z, -y)"}
+    first = write_obj(textured, tmp_path / "textured.obj", frame).read_text().splitlines()[0]
+    assert json.loads(first.removeprefix("# georeference: ")) == frame
+    assert len(trimesh.load(tmp_path / "textured.obj", force="mesh").faces) == len(textured.faces)  # still an OBJ
