@@ -284,6 +284,8 @@ def _georef_section(georef: dict, model: gather.Model | None, figure) -> str:
         out.append('<h3>Scale bars</h3><table id="scale-bars"><tr><th>bar</th><th class=num>length (m)</th>'
                    "<th class=num>in the model (m)</th><th class=num>difference (m)</th>"
                    "<th class=num>max reproj. (px)</th></tr>" + rows + "</table>")
+    for record in georef.get("markers", []):
+        out.append(_markers_table(record))
     if photos:
         rows = "".join(f"<tr><td>{_e(p['name'])}</td><td class=num>{p['sigma_m']:.3g}</td>"
                        f"<td class=num>{p['residual_m']:.2f}</td>"
@@ -292,6 +294,27 @@ def _georef_section(georef: dict, model: gather.Model | None, figure) -> str:
                    "<th class=num>GPS sigma (m)</th><th class=num>camera to GPS (m)</th><th>used</th></tr>"
                    + rows + "</table></div>")
     return "".join(out)
+
+
+def _markers_table(record: dict) -> str:
+    """The printed targets of one kind (georeference.json's ``markers``): what they did, and per target
+    the RMS residual of its known distances."""
+    head = f'<h3>{_e(record["source"][:1].upper() + record["source"][1:])}</h3><p>{_e(record["what"])}: '
+    if not record["used"]:
+        return head + f'<span class=bad>not used</span>: {_e(record["reason"])}.</p>'
+    std = record["scale_relative_std"]
+    spread = "" if std is None else f" (+- {100 * std:.2g} %)"
+    head += (f"they set the scale, x{record['scale']:.5g}{spread}" if record["set_scale"] else
+             f"a check of the scale: they measure it x{record['scale']:.5g}{spread}")
+    head += (f"; {record['edges']} known distances; detections in {record['photos_with_detections']} of "
+             f"{record['photos_searched']} photos.</p>")
+    rows = "".join(f"<tr><td>{_e(t['name'])}</td><td class=num>{len(t['length_m'])}</td><td class=num>"
+                   f"{t['residual_m']:.4f}</td><td class=num>{len(t['photos'])}</td><td class=num>"
+                   f"{t['reprojection_px']:.2f}</td></tr>" for t in record["targets"])
+    skipped = "".join(f"<li><b>{_e(n)}</b> not used: {_e(why)}</li>" for n, why in record["not_used"].items())
+    return (head + '<table class="markers"><tr><th>target</th><th class=num>distances</th><th class=num>'
+            "RMS residual (m)</th><th class=num>photos</th><th class=num>max reproj. (px)</th></tr>" + rows
+            + "</table>" + (f"<ul>{skipped}</ul>" if skipped else ""))
 
 
 def _mapper_note(registration: dict) -> str:

@@ -19,11 +19,12 @@ import numpy as np
 from recon.geometry.gcp import GcpList, to_wgs84
 from recon.geometry.georef import CHI3_99, Alignment, GeorefError, align_to_control, align_to_gps
 from recon.geometry.gps import enu_from_wgs84, wgs84_from_enu
-from recon.geometry.scale import fit_scale
+from recon.geometry.scale import BarScale, fit_scale
 from recon.geometry.transforms import Similarity
 from recon.geometry.utm import enu_to_utm
 from recon.sparse import gps_prior
 from recon.sparse.control import ControlError, ScaleBar, triangulate
+from recon.sparse.markers import Found
 
 log = logging.getLogger(__name__)
 
@@ -197,8 +198,8 @@ def _georeference_other(model, gps, origin, sigma: float, seed: int) -> dict:
 
 def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed: int = 0,
           gcps: GcpList | None = None, gcp_sigma: float = DEFAULT_GCP_SIGMA,
-          scale_bars: Sequence[ScaleBar] = (), prior: str | None = "off", ba_options=None,
-          crs: str = "enu") -> dict:
+          scale_bars: Sequence[ScaleBar] = (), markers: Sequence[Found] = (), prior: str | None = "off",
+          ba_options=None, crs: str = "enu") -> dict:
     """Put ``models`` (largest first) in metres, in place, from what the user has: the photos' GPS
     (``gps``; None: not used; ``prior``, ``ba_options``: :func:`georeference`), ground control points
     (``gcps``, the first model), scale bars (the first model); returns georeference.json, whose ``scale_source`` says which fixed the scale
@@ -216,6 +217,11 @@ def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed
     length and its length in the model); ``model_scale`` (the scale applied to a model that stays
     in the mapper's frame); ``gps`` (why GPS was not used when GCPs placed the model).
 
+    ``markers``: printed targets found in the photos (:func:`recon.sparse.markers.search`; ArUco
+    markers, a chessboard), measured in the first model after the scale bars and, like them, setting
+    the scale unless GCPs, scale bars or an earlier kind of target fixed it (``scale_source``
+    "ArUco markers", "chessboard"); ``markers`` in the result: one record per kind (:func:`_apply_markers`).
+
     ``crs`` "utm": a model placed on the Earth ends in its UTM zone minus whole kilometres instead of
     local ENU (``utm``: zone, EPSG code, offset, the ENU-to-frame similarity and its largest error);
     the per-photo and per-GCP ``*_enu`` positions stay in the local ENU frame.
@@ -231,6 +237,8 @@ def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed
         _apply_gcps(models[0], result, gcps, gcp_sigma)
     if models and scale_bars:
         _apply_scale_bars(models[0], result, scale_bars)
+    for found in markers if models else ():
+        _apply_markers(models[0], result, found)
     if crs == "utm":
         _to_utm(models, result)
     return result
@@ -371,23 +379,72 @@ def _apply_scale_bars(model, result: dict, bars: Sequence[ScaleBar]) -> None:
     lengths = np.array([bar.length for bar in bars])
     if result["scale_source"] != "GCP":
         fit = fit_scale(measured, lengths)
-        centre = (np.mean([p["camera_enu"] for p in result["photos"] if p["inlier"]], axis=0)
-                  if result["georeferenced"] else np.zeros(3))
-        step = Similarity(fit.scale, np.eye(3), (1 - fit.scale) * centre)
-        _transform(model, step)
+        _set_scale(model, result, fit, "scale bar")
         measured = measured * fit.scale
-        if result["georeferenced"]:
-            result["model_to_enu"] = _similarity_record(_compose(step, _model_to_frame(result)))
-            _refresh_photos(model, result)
-        else:
-            result["model_scale"] = {"scale": fit.scale, "maps": "x = scale * x_model (about the origin)"}
-        result["scale_source"] = "scale bar"
-        result["scale_relative_std"] = None if np.isnan(fit.relative_std) else fit.relative_std
     result["scale_bars"] = [
         {"length_m": float(bar.length), "model_length_m": float(d), "error_m": float(d - bar.length),
          "reprojection_px": float(max(a.reprojection_px.max(), b.reprojection_px.max())),
          "photos": sorted(set(a.photos) | set(b.photos))}
         for bar, d, (a, b) in zip(bars, measured, ends)]
+
+
+def _set_scale(model, result: dict, fit: BarScale, source: str) -> None:
+    """Scale ``model`` by ``fit.scale``: about the GPS inlier photos' centroid when GPS placed it (the
+    position and rotation GPS fixed stay), about the origin otherwise; ``source`` fixed the scale."""
+    centre = (np.mean([p["camera_enu"] for p in result["photos"] if p["inlier"]], axis=0)
+              if result["georeferenced"] else np.zeros(3))
+    step = Similarity(fit.scale, np.eye(3), (1 - fit.scale) * centre)
+    _transform(model, step)
+    if result["georeferenced"]:
+        result["model_to_enu"] = _similarity_record(_compose(step, _model_to_frame(result)))
+        _refresh_photos(model, result)
+    else:
+        result["model_scale"] = {"scale": fit.scale, "maps": "x = scale * x_model (about the origin)"}
+    result["scale_source"] = source
+    result["scale_relative_std"] = None if np.isnan(fit.relative_std) else fit.relative_std
+
+
+def _apply_markers(model, result: dict, found: Found) -> None:
+    """Triangulate the corners of the targets ``found`` in ``model`` and measure their known distances;
+    unless GCPs, scale bars or an earlier kind of target fixed the scale, scale the model so they
+    have their lengths (a scale from GPS alone they replace, as scale bars do). Appends the record of these targets to ``result["markers"]``:
+    whether they set the scale, the scale they measure in the model before (known / model length,
+    fitted over every distance; 1 when they agree with the scale already fixed) and its spread, and
+    per target its distances, their RMS residual, its photos and largest reprojection error."""
+    record = {"source": found.source, "option": found.option, "what": found.what, "photos_searched": found.photos,
+              "photos_with_detections": found.photos_with_detections}
+    seen, unused = [], {}
+    for target in found.targets:
+        try:
+            seen.append((target, [triangulate(model, corner) for corner in target.corners]))
+        except ControlError as exc:
+            unused[target.name] = str(exc)
+    if not seen:
+        why = "; ".join(f"{name}: {reason}" for name, reason in unused.items())
+        result.setdefault("markers", []).append(
+            {**record, "used": False, "set_scale": False, "targets": [], "not_used": unused,
+             "reason": found.problem or f"{found.option}: no target could be measured in the model ({why})"})
+        return
+    measured = [np.array([np.linalg.norm(points[i].xyz - points[j].xyz) for i, j, _ in target.edges])
+                for target, points in seen]
+    lengths = [np.array([length for _, _, length in target.edges]) for target, _ in seen]
+    fit = fit_scale(np.concatenate(measured), np.concatenate(lengths))
+    sets = result["scale_source"] in ("GPS", "none")
+    if sets:
+        _set_scale(model, result, fit, found.source)
+        measured = [d * fit.scale for d in measured]
+    result.setdefault("markers", []).append({
+        **record, "used": True, "set_scale": sets, "scale": fit.scale,
+        "scale_relative_std": None if np.isnan(fit.relative_std) else fit.relative_std,
+        "edges": int(sum(len(d) for d in measured)),
+        "what_scale": "known / model length of the targets' edges, fitted over all of them, in the model as it "
+                      "was before they were measured (1: they agree with the scale already fixed)",
+        "targets": [{"name": target.name, "photos": sorted({name for p in points for name in p.photos}),
+                     "length_m": known.tolist(), "model_length_m": d.tolist(),
+                     "residual_m": float(np.sqrt(np.mean(np.square(d - known)))),
+                     "reprojection_px": float(max(p.reprojection_px.max() for p in points))}
+                    for (target, points), d, known in zip(seen, measured, lengths)],
+        "not_used": unused})
 
 
 def _similarity_record(sim: Similarity) -> dict:

@@ -11,7 +11,9 @@ Cameras come from the database (preprocess's intrinsics); when they are a calibr
 
 Last step: with enough GPS-tagged photos the models are georeferenced (:mod:`recon.sparse.georeference`):
 written in local East-North-Up metres, so every later stage's output is too; ``georeference.json``
-records the frame, the similarity applied and the GPS residuals.
+records the frame, the similarity applied and the GPS residuals. Ground control points, scale bars
+and printed targets the photos show (ArUco markers, a chessboard: :mod:`recon.sparse.markers`) place
+or scale the first model (:func:`recon.sparse.georeference.place`).
 
 Photos added to a finished workspace: the newest earlier model made with the same options, whose
 photos are all still there with the same features, is continued instead of mapping every photo
@@ -31,10 +33,11 @@ from recon.files import write_json
 from recon.geometry.gcp import GcpFileError, read_gcp_list
 from recon.options import opt, output_options
 from recon.products import FeatureDatabase, MatchDatabase, PreparedPhotos, SparseModel
-from recon.sparse import continuation, georeference, lens, mapping
+from recon.sparse import continuation, georeference, lens, mapping, markers
 from recon.sparse.control import ControlError, ScaleBar
 from recon.sparse.frame import level_model
 from recon.sparse.georeference import DEFAULT_GCP_SIGMA
+from recon.sparse.markers import ArucoMarkers, Chessboard
 from recon.stage import Stage, StageContext, StageError, producer, register
 
 
@@ -81,6 +84,12 @@ class SfmConfig:
     scale_bars: list[ScaleBar] = opt([], "known distances between two points each marked in two photos or more "
                                          "({length: metres, a: [{photo, x, y}, ...], b: [...]}): they set the "
                                          "model's scale (without GCPs), or check it")
+    aruco: ArucoMarkers = opt(ArucoMarkers(), "printed ArUco markers of one size in view: found in the photos by "
+                                              "themselves, their sides set the model's scale as scale bars do "
+                                              "(without GCPs or scale bars), or check it")
+    chessboard: Chessboard = opt(Chessboard(), "a printed chessboard in view: found in the photos by itself, its "
+                                               "rows and columns set the model's scale as scale bars do (without "
+                                               "GCPs, scale bars or ArUco markers), or check it")
     gps_prior: Literal["auto", "on", "off"] = opt(
         "auto", "a last bundle adjustment with the GPS positions as priors (georeferenced models): auto = when the "
                 "photos' GPS accuracy is 0.5 m or better (RTK / PPK; sfm.gps_sigma, else their tags), where it "
@@ -124,7 +133,7 @@ class Sfm(Stage):
         if not models:
             raise StageError(f"sfm: no model could be built. {report['reason']}")
         kept = _keep_frame(ctx, models, previous) if start is not None else None
-        georef = _georeference(ctx, cfg, models, listing["images"], continued=start is not None)
+        georef = _georeference(ctx, cfg, models, listing["images"], images, continued=start is not None)
         report["frame"] = _level(models, georef, kept)
         report["mapping"] = ({"continued_from": previous_key[:16], "previous_photos": start.num_reg_images()}
                              if start is not None else "from scratch")
@@ -228,15 +237,18 @@ def _gcp_file(ctx: StageContext, cfg: SfmConfig) -> Path | None:
                          "give an OpenDroneMap gcp_list.txt (format: README, 'Metric scale and ground control')")
 
 
-def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[dict], continued: bool) -> dict:
+def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[dict], pictures: Path,
+                  continued: bool) -> dict:
     """Put the models in metres in place (GPS: sfm.georeference, sfm.gps_prior unless the model was
-    ``continued``; sfm.gcp_file; sfm.scale_bars) and log what was done; georeference.json."""
+    ``continued``; sfm.gcp_file; sfm.scale_bars; sfm.aruco and sfm.chessboard, searched for in the
+    registered photos of the first model, under ``pictures``) and log what was done; georeference.json."""
     gps = georeference.gps_positions(images) if cfg.georeference == "auto" else None
     path = _gcp_file(ctx, cfg)
+    found = [_search(ctx, models[0], pictures, target) for target in (cfg.aruco, cfg.chessboard) if target.enabled]
     try:
         gcps = None if path is None else read_gcp_list(path)
         result = georeference.place(models, gps, sigma=cfg.gps_sigma, seed=ctx.seed, gcps=gcps,
-                                    gcp_sigma=cfg.gcp_sigma, scale_bars=cfg.scale_bars,
+                                    gcp_sigma=cfg.gcp_sigma, scale_bars=cfg.scale_bars, markers=found,
                                     prior=None if continued else cfg.gps_prior,
                                     ba_options=mapping.ba_options(cfg, principal_point=False), crs=cfg.crs)
     except GcpFileError as exc:
@@ -273,8 +285,14 @@ def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[
     return result
 
 
+def _search(ctx: StageContext, model, pictures: Path, target: ArucoMarkers | Chessboard) -> markers.Found:
+    """The registered photos of ``model`` searched for ``target``, one task per photo."""
+    desc = f"sfm: looking for {target.describe()}"
+    return markers.search(model, pictures, target, lambda fn, items: ctx.map(fn, items, desc=desc))
+
+
 def _log_control(ctx: StageContext, result: dict) -> None:
-    """Log what the GCPs and scale bars did (georeference.json has the figures)."""
+    """Log what the GCPs, scale bars and printed targets did (georeference.json has the figures)."""
     gcp = result.get("gcp")
     if gcp is not None:
         check = "" if gcp["check_rms_m"] is None else f", leave-one-out check RMS {gcp['check_rms_m']:.3f} m"
@@ -288,3 +306,14 @@ def _log_control(ctx: StageContext, result: dict) -> None:
     for k, bar in enumerate(result.get("scale_bars", []), start=1):
         ctx.log.info("sfm: scale bar %d: %.4g m, %.4g m in the model (%s)", k, bar["length_m"], bar["model_length_m"],
                      "it set the scale" if result["scale_source"] == "scale bar" else "a check")
+    for record in result.get("markers", []):
+        if not record["used"]:
+            ctx.log.warning("sfm: %s", record["reason"])
+            continue
+        std = record["scale_relative_std"]
+        ctx.log.info("sfm: %s (%s): %d target(s), %d edges in %d photos; %s: x%.5g%s", record["source"], record["what"],
+                     len(record["targets"]), record["edges"], record["photos_with_detections"],
+                     "they set the scale" if record["set_scale"] else "a check of the scale, which they measure",
+                     record["scale"], "" if std is None else f" +- {100 * std:.2g} %")
+        for name, why in record["not_used"].items():
+            ctx.log.warning("sfm: %s: %s not used: %s", record["option"], name, why)
