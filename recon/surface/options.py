@@ -40,6 +40,8 @@ class TextureOptions:
     min_view_cosine: float = opt(0.1, "ignore views seeing a face more obliquely than this cosine", ge=0.0, lt=1.0)
     border_margin: int = opt(2, "faces must project this many pixels inside the photo border", ge=0)
     expansion_cycles: int = opt(2, "alpha-expansion sweeps over all views in view selection", ge=0, le=20)
+    photo_consistency: bool = opt(True, "drop, per face, views whose colour there disagrees with most of its views "
+                                        "(a car or person in some photos only), after their exposure is evened out")
     levelling: bool = opt(True, "global colour adjustment between patches (Lempitsky and Ivanov 2007)")
     levelling_weight: float = opt(10.0, "weight of the smoothness of the per-vertex colour corrections within a patch (seams weigh 1)", gt=0.0)
     seam_blending: bool = opt(True, "local blending of the remaining colour differences in a band along seams")

@@ -1,6 +1,7 @@
 """Texture mapping of a mesh from its photos (after Waechter et al. 2014, "Let There Be Color!").
 
-Steps: per-face view quality with occlusion tests (:mod:`.views`), one view per face by graph cuts
+Steps: per-face view quality with occlusion tests (:mod:`.views`), views inconsistent with the
+others dropped per face (:mod:`.consistency`), one view per face by graph cuts
 (:mod:`.selection`), global seam levelling (:mod:`.levelling`), an atlas of the patches' projections
 (:mod:`.atlas`), baking (:mod:`.bake`), local blending along seams (:mod:`.blending`).
 """
@@ -20,6 +21,7 @@ from recon.surface.raycast import render_ids, scene_of
 from recon.surface.texture.atlas import layout
 from recon.surface.texture.bake import bake, vertex_colors
 from recon.surface.texture.blending import blend_seams
+from recon.surface.texture.consistency import drop_inconsistent_views
 from recon.surface.texture.levelling import level_seams
 from recon.surface.texture.model import TexturedMesh
 from recon.surface.texture.selection import select_views
@@ -58,6 +60,9 @@ def texture_mesh(mesh: trimesh.Trimesh, images: Sequence[np.ndarray], cameras: S
     quality = view_quality(vertices, faces, images, cameras, depths, options.min_view_cosine,
                            options.border_margin)
     lap("visibility")
+    if options.photo_consistency:
+        quality = drop_inconsistent_views(quality, vertices, faces, images, cameras)
+        lap("photo-consistency")
     pairs, edge_vertices = face_adjacency(faces)
     edge_length = np.linalg.norm(vertices[edge_vertices[:, 0]] - vertices[edge_vertices[:, 1]], axis=1)
     area = np.asarray(trimesh.triangles.area(vertices[faces]))
