@@ -84,7 +84,7 @@ def _view_pass(task) -> str:
 @register
 class Mvs(Stage):
     name = "mvs"
-    version = 2
+    version = 3
     Config = MvsConfig
     requires = (DenseScene, SparseModel, PreparedPhotos)  # the photos and their cameras key the maps kept
     produces = DepthMaps

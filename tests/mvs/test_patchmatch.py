@@ -85,7 +85,9 @@ def test_cost_is_lowest_at_the_true_plane(plane):
         state = _state(depths[0] * scale, normal)
         pm.evaluate_state(level, state, OPTIONS, pm.ALL_VIEWS)
         costs[scale] = float(np.median(state.cost[inner]))
-    assert costs[1.0] < 0.05
+    # mvs.sigma_color 0.1 puts a window's weight on fewer pixels, so the warped views' resampling noise
+    # weighs more at the true plane (median 0.062; 0.026 at 0.2) and the wrong planes cost more (0.37; 0.20)
+    assert costs[1.0] < 0.1
     assert costs[0.97] > costs[1.0] + 0.1 and costs[1.03] > costs[1.0] + 0.1
 
 

@@ -3,7 +3,7 @@ import pycolmap
 import pytest
 
 from recon.mvs.options import MVSOptions
-from recon.mvs.views import angle_weight, select_problems
+from recon.mvs.views import angle_weight, select_problems, view_camera
 from recon.synth import load_scene
 
 
@@ -23,6 +23,28 @@ def test_every_view_gets_sources_and_a_depth_range_holding_its_surface(small_sce
         low, high = np.percentile(truth[truth > 0], [1, 99])
         assert problem.depth_min <= low and high <= problem.depth_max
         assert problem.depth_max < 4 * high  # a margin, not an unbounded range
+
+
+def test_the_far_bound_reaches_the_points_in_view_that_the_view_does_not_observe(reconstruction):
+    # far ground seen at a grazing angle: other views triangulate it, the view itself matches none of it
+    rec = pycolmap.Reconstruction(reconstruction)
+    before = {p.ref: p for p in select_problems(rec)}
+    image = next(im for im in rec.images.values() if im.name == "view_002.jpg")
+    cam = view_camera(image, rec.camera(image.camera_id))
+    far = 5 * before[image.name].depth_max
+
+    def at(x_cam):  # the world point at camera coordinates x_cam of view_002
+        return cam.R.T @ (np.asarray(x_cam, dtype=float) - cam.t)
+
+    rec.add_point3D(at([0.0, 0.0, -far]), pycolmap.Track())  # behind the camera
+    rec.add_point3D(at([10 * far, 0.0, far]), pycolmap.Track())  # in front, outside the image
+    unchanged = {p.ref: p for p in select_problems(rec)}
+    assert {k: (p.depth_min, p.depth_max) for k, p in unchanged.items()} == \
+        {k: (p.depth_min, p.depth_max) for k, p in before.items()}
+    rec.add_point3D(at([0.0, 0.0, far]), pycolmap.Track())  # on its optical axis, observed by no view
+    after = {p.ref: p for p in select_problems(rec)}[image.name]
+    assert after.depth_max == pytest.approx(far * (1 + MVSOptions().depth_margin))
+    assert after.depth_min == before[image.name].depth_min  # the near bound stays on the view's own points
 
 
 def test_sources_are_the_neighbours_on_the_path(reconstruction):
