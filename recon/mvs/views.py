@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 
+from recon.geometry.transforms import project
 from recon.mvs.options import MVSOptions
 
 log = logging.getLogger(__name__)
@@ -88,11 +89,10 @@ def scaled_to(view: ViewCamera, width: int, height: int) -> ViewCamera:
 
 def depths_in_view(cam: ViewCamera, xyz: np.ndarray) -> np.ndarray:
     """Depths of the points ``xyz`` (N, 3) in front of ``cam`` that project inside its image."""
-    x = xyz @ cam.R.T + cam.t
-    x = x[x[:, 2] > 0]
-    uv = x @ cam.K.T
-    u, v = uv[:, 0] / uv[:, 2], uv[:, 1] / uv[:, 2]
-    return x[(u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height), 2]
+    uv, z = project(cam.K, cam.R, cam.t, xyz)
+    with np.errstate(invalid="ignore"):
+        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    return z[inside]
 
 
 def angle_weight(angle_deg: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ qualify and no other view now ranks among its ``reselect_top`` best
 (:func:`recon.mvs.views.select_problems`), and reuses its final maps. A view that takes new sources
 starts from the photometric maps its old sources gave (kept in the store, the normals as float16)
 and runs only the geometric pass, against its new sources: the photometric pass costs about nine
-times the geometric one, and the final maps then see the new photo (zoo classic 320x240, 20 + 4
+times the geometric one at 320x240, twice at 640x480, and the final maps then see the new photo (zoo classic 320x240, 20 + 4
 views: final maps kept from the old sources covered 0.915 of the true surface's pixels, from-scratch
 maps 0.946, maps checked again against the new sources 0.932). So a new photo costs its own
 photometric maps and a geometric pass for each view whose sources it changes. ``views.json`` records each view's sources,
@@ -55,7 +55,7 @@ class MvsConfig(MVSOptions):
            "now ranks among its best this many; then it takes its new sources and runs the geometric pass again "
            "from the photometric maps its old ones gave. 0 = keeps them while they qualify (zoo classic 320x240, "
            "20 + 4 views: 0 reuses 19 of 24 final maps, fused F@0.2% 0.017 below from scratch; 2 reuses 12, 0.012 "
-           "below; 8 reuses none, 0.006 below, for 24 geometric passes at a ninth of a photometric one each)",
+           "below; 8 reuses none, 0.006 below, for 24 geometric passes at a ninth (320x240) to a half (640x480) of a photometric one each)",
         ge=0, le=32)
     keep_photometric: bool = opt(
         False, "keep each view's photometric depth and normal maps (<image>.photometric.bin) beside its final "
@@ -268,6 +268,7 @@ def _link_photometric(plan: _Plan, stereo: Path, name: str, own: bool) -> bool:
 
 
 def _save(path: Path, array: np.ndarray) -> None:
+    """``array`` as .npy at ``path`` exactly (np.save given a path would append ".npy" to a temporary name)."""
     with path.open("wb") as f:
         np.save(f, array)
 
