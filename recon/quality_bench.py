@@ -2,7 +2,8 @@
 
 Per scene: registered views, the fused cloud's and the mesh's F-score at 0.2 % and 0.5 % of the
 scene's extent (recon.eval.surface, through ``recon.api.evaluate``: the model is aligned to the
-ground truth by a robust similarity on the camera centres), and in the scene's held-out views the
+ground truth on its camera centres and axes, refined on its sparse points' reprojection in the true
+cameras; recon.eval.workspace says why), and in the scene's held-out views the
 masked PSNR of the textured mesh beside that of the vertex-coloured mesh (the baseline a texture
 must beat) and the texture's coverage; seconds per stage. Then the mean and the worst scene. Beside
 them, to tell which part of the chain lost a scene's quality: the cameras' relative-pose AUC at 5
@@ -233,16 +234,16 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\n== quality: the zoo ({len(names)} scenes, {width}x{height}) through {args.config.name}, "
           "evaluated against ground truth ==", flush=True)
     rows = []
+    path = args.out / "quality.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
     for name in names:
         rows.append(bench_scene(name, args.out / "quality", args.config, args.override, width, height, args.views))
         print(f"bench: {name} done" + (f" (failed: {rows[-1]['error']})" if "error" in rows[-1] else ""),
               file=sys.stderr, flush=True)
-    summ = summary(rows)
-    print_table(rows, summ)
-    path = args.out / "quality.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"config": str(args.config), "overrides": args.override, "size": [width, height],
-                                "scenes": rows, "summary": summ}, indent=1))
+        # written after every scene: an interrupted run keeps the scenes it finished
+        path.write_text(json.dumps({"config": str(args.config), "overrides": args.override,
+                                    "size": [width, height], "scenes": rows, "summary": summary(rows)}, indent=1))
+    print_table(rows, summary(rows))
     print(f"results: {path}")
     return 0
 

@@ -3,7 +3,8 @@
 Poisson closes every surface it builds: the open sides of a scene (sky, the far side of a facade) come
 back as smooth balloon surfaces far from any point. Three trims remove them: vertices of low point
 density (open3d reports the density of the octree node each vertex came from), faces outside the
-points' bounding box grown by a margin, and faces farther than a few octree cells from any point.
+points' bounding box grown by a margin, and faces farther than a few octree cells (or than the
+points' own spacing, where they lie sparser) from any point.
 """
 
 from __future__ import annotations
@@ -26,6 +27,17 @@ log = logging.getLogger(__name__)
 #: F@0.2 % was 0.931 with the levelled frame's axes against 0.954-0.960 in three random frames. So the
 #: points are turned into this fixed oblique frame for Poisson, and the mesh back.
 OBLIQUE = axis_angle_rotation(np.array([1.0, 2.0, 3.0]), 0.6)  # no axis of it along a levelled frame's
+
+
+def point_gap(tree: cKDTree) -> float:
+    """Twice the 90th percentile of the points' nearest-neighbour distances: the distance trim never
+    cuts closer than this, or it punches holes between points spaced wider than its Poisson cells (a
+    masked object at 320x240: points 4.6 cells apart, 14 % of the faces cut out as pinholes, 11,669
+    boundary edges against 518, held-out coverage 0.85)."""
+    if tree.n < 2:
+        return 0.0
+    nearest, _ = tree.query(tree.data, k=2, workers=-1)
+    return 2.0 * float(np.percentile(nearest[:, 1], 90))
 
 
 def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | None = None,
@@ -57,7 +69,8 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | N
     if options.trim_distance > 0:
         cell = (hi - lo).max() / 2**options.depth
         centroids = vertices[faces].mean(axis=1)
-        dist, _ = tree.query(centroids, distance_upper_bound=options.trim_distance * cell, workers=-1)
+        dist, _ = tree.query(centroids, distance_upper_bound=max(options.trim_distance * cell, point_gap(tree)),
+                             workers=-1)
         keep_face &= np.isfinite(dist)
     out = trimesh.Trimesh(vertices, faces[keep_face], process=False)
     out.remove_unreferenced_vertices()

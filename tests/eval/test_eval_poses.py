@@ -162,3 +162,45 @@ def test_cameras_in_a_line_are_aligned_about_their_line_too():
     sim = align_cameras(est, truth)
     point = np.array([[4.0, 6.0, 0.0]])  # on the facade the walk faces, off the cameras' line
     assert np.linalg.norm(sim.apply(scale * point @ rot.T + shift) - point) < 1e-2
+
+
+def test_workspace_alignment_is_refined_on_the_sparse_points(tmp_path):
+    """The model's cameras carry pose noise, its sparse points and their keypoints are exact: the
+    alignment on camera centres and axes is off by the noise, the refined one (reprojection of the
+    sparse points into the true cameras) recovers the model's frame (recon.eval.workspace)."""
+    import pycolmap
+
+    from recon.eval.workspace import _estimated_poses, _load_gt, align_cameras, model_to_ground_truth
+    from recon.geometry.transforms import qvec_to_rotmat
+    from recon.mvs.gt_workspace import points_from_depths
+    from recon.mvs.views import ViewCamera
+    from recon.synth import render_scene
+
+    scene = render_scene(tmp_path / "scene", views=6, width=160, height=120, seed=3)
+    truth = scene.cameras()
+    names = scene.image_names
+    cams = [ViewCamera(n, truth[n].K, truth[n].R, truth[n].t, 160, 120) for n in names]
+    rec = points_from_depths(cams, [scene.depth(n) for n in names], points_per_image=200)
+    to_model = Similarity(0.5, qvec_to_rotmat(np.array([0.9, 0.3, -0.2, 0.25]) / np.linalg.norm([0.9, 0.3, -0.2, 0.25])),
+                          np.array([3.0, -1.0, 2.0]))
+    rng = np.random.default_rng(0)
+    for point in rec.points3D.values():
+        point.xyz = to_model.apply(point.xyz[None])[0]
+    for image in rec.images.values():
+        R, t = to_model.apply_to_pose(truth[image.name].R, truth[image.name].t)
+        q = np.r_[1.0, rng.normal(0, 0.01, 3)]
+        R_noisy = qvec_to_rotmat(q / np.linalg.norm(q)) @ R
+        centre = -R.T @ t + rng.normal(0, 0.02, 3)
+        rec.frames[image.frame_id].rig_from_world = pycolmap.Rigid3d(pycolmap.Rotation3d(R_noisy), -R_noisy @ centre)
+    (tmp_path / "ws" / "sparse" / "0").mkdir(parents=True)
+    rec.write(tmp_path / "ws" / "sparse" / "0")
+
+    probe = np.array([p.xyz for p in rec.points3D.values()])
+    expected = to_model.inverse().apply(probe)
+    gt_cams = _load_gt(scene.root)
+    est = _estimated_poses(tmp_path / "ws", gt_cams)
+    start = align_cameras([est[n] for n in sorted(est)], [(gt_cams[n].R, gt_cams[n].t) for n in sorted(est)])
+    refined = model_to_ground_truth(tmp_path / "ws", scene.root)
+    extent = np.ptp(expected, axis=0).max()
+    assert np.median(np.linalg.norm(start.apply(probe) - expected, axis=1)) > 2e-3 * extent
+    assert np.median(np.linalg.norm(refined.apply(probe) - expected, axis=1)) < 1e-4 * extent

@@ -38,3 +38,15 @@ def test_tsdf_is_accurate(small_scene, noise):
     m = surface_metrics(mesh, small_scene.info)
     assert m["fscore@0.002"] >= (90 if noise == 0 else 80) and m["fscore@0.005"] >= 97
     assert mesh.visual.kind == "vertex"
+
+
+def test_points_sparser_than_the_poisson_cells_leave_no_pinholes():
+    """A unit sphere sampled every ~0.08 and meshed at depth 9 (cells of 0.004): the distance trim at 4
+    cells alone would cut out every face between the points; it never cuts closer than their spacing."""
+    n = 2000
+    k = np.arange(n) + 0.5
+    polar, azimuth = np.arccos(1 - 2 * k / n), np.pi * (1 + 5**0.5) * k
+    pts = np.column_stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)])
+    mesh = poisson_mesh(pts, pts, options=MeshOptions(depth=9, density_quantile=0))
+    assert mesh.area == pytest.approx(4 * np.pi, rel=0.03)
+    assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - 1).max() < 0.02
