@@ -128,7 +128,7 @@ def test_added_photos_cost_their_own_depth_maps(small_scene, tmp_path):
 
 @pytest.mark.slow
 def test_views_with_new_sources_rerun_only_the_geometric_pass(small_scene, tmp_path):
-    """With the default ``reselect_top`` (8), a view whose best sources a new photo changes takes them
+    """With ``reselect_top`` 8, a view whose best sources a new photo changes takes them
     but starts from the photometric maps its earlier ones gave: the photometric pass runs for the new
     photos only, and those views' final maps are new files."""
     s, views, added, kept, maps = _twelve_then_sixteen(small_scene, tmp_path, reselect_top=8)
