@@ -13,7 +13,9 @@ centroid moves the surface by more than the 0.2 % F-score threshold (zoo ``aeria
 320x240: median distance of the fused cloud 0.41 m against a 0.23 m threshold aligned on centres,
 while its points reproject within 0.20 px into the true cameras). The refinement picks the frame
 the sparse model agrees with best; the scored surfaces play no part in it, and a bent model stays
-bent. Pose errors are measured separately (``poses``).
+bent. Pose errors are measured separately (``poses``). Fisheye and 360 scenes are aligned on centres
+and axes alone: their photos' pixels do not follow the true cameras' pinhole projection that the
+refinement measures in.
 """
 
 from __future__ import annotations
@@ -27,14 +29,18 @@ class EvaluationError(ValueError):
     """The workspace or the ground truth cannot be evaluated; the message says why."""
 
 
-def _estimated_poses(ws: Path, gt_cams: dict) -> dict:
-    """World-to-camera (R, t) of ``<ws>/sparse/0``'s registered images, keyed by their ground-truth names."""
+def _sparse_model(ws: Path):
+    """``<ws>/sparse/0``, loaded (an EvaluationError when the workspace has none)."""
     import pycolmap
 
     model = Published(ws).model()
     if not (model / "images.bin").exists() and not (model / "images.txt").exists():
         raise EvaluationError(f"{ws}: no sparse model at {model.relative_to(ws)}; run the pipeline first")
-    rec = pycolmap.Reconstruction(str(model))
+    return pycolmap.Reconstruction(str(model))
+
+
+def _estimated_poses(rec, gt_cams: dict) -> dict:
+    """World-to-camera (R, t) of the model's registered images, keyed by their ground-truth names."""
     by_base = {Path(n).name: n for n in gt_cams}
     est = {}
     for image in rec.images.values():
@@ -57,28 +63,28 @@ def _load_gt(gt: str | Path) -> dict:
 def model_to_ground_truth(workspace: Path, gt: Path):
     """The similarity taking the model's world to the ground truth's (the module doc's alignment)."""
     gt_cams = _load_gt(gt)
-    return _alignment(workspace, _estimated_poses(workspace, gt_cams), gt_cams, gt)
+    rec = _sparse_model(Path(workspace))
+    return _alignment(rec, _estimated_poses(rec, gt_cams), gt_cams, gt, refine=not _wide_cameras(Path(gt)))
 
 
-def _alignment(ws: Path, est: dict, gt_cams: dict, gt: str | Path):
-    """Camera centres and axes, then the sparse model's reprojection error (module doc)."""
+def _alignment(rec, est: dict, gt_cams: dict, gt: str | Path, refine: bool):
+    """Camera centres and axes, then, with ``refine``, the sparse model's reprojection error (module
+    doc)."""
     from recon.eval.reprojection import refine_alignment
 
     if len(est) < 3:
         raise EvaluationError(f"{gt}: fewer than 3 images of the model have a ground-truth camera")
     names = sorted(est)
     start = align_cameras([est[n] for n in names], [(gt_cams[n].R, gt_cams[n].t) for n in names])
-    observations = _sparse_observations(ws, gt_cams)
+    observations = _sparse_observations(rec, gt_cams) if refine else []
     return refine_alignment(observations, gt_cams, start) if observations else start
 
 
-def _sparse_observations(ws: Path, gt_cams: dict) -> list:
+def _sparse_observations(sparse, gt_cams: dict) -> list:
     """Per registered image with a ground-truth camera: its triangulated points (model frame) and the
     pixels it observed them at, scaled to the ground-truth photo's size."""
     import numpy as np
-    import pycolmap
 
-    sparse = pycolmap.Reconstruction(str(Published(ws).model()))
     by_base = {Path(n).name: n for n in gt_cams}
     observations = []
     for image in sparse.images.values():
@@ -125,15 +131,17 @@ def evaluate(workspace: Path, gt: Path) -> dict:
 
     ws = Path(workspace)
     gt_cams = _load_gt(gt)
-    est = _estimated_poses(ws, gt_cams)
+    rec = _sparse_model(ws)
+    est = _estimated_poses(rec, gt_cams)
     if not est:
         raise EvaluationError(f"{gt}: no image of the model has a ground-truth camera there (names differ?)")
     figures: dict = {"poses": pose_metrics(est, gt_cams)}
     scene_file = Path(gt) / "gt" / "scene.json"
     published = Published(ws)
     surfaces = [(key, path) for key, path in (("fused", published.fused), ("mesh", published.mesh)) if path.exists()]
-    reprojection = published.fused.exists() and published.depth_maps.is_dir() and not _wide_cameras(gt, scene_file)
-    sim = _alignment(ws, est, gt_cams, gt) if len(est) >= 3 and (reprojection or scene_file.exists() and surfaces) else None
+    wide = _wide_cameras(Path(gt))
+    reprojection = published.fused.exists() and published.depth_maps.is_dir() and not wide
+    sim = _alignment(rec, est, gt_cams, gt, refine=not wide) if len(est) >= 3 and (reprojection or scene_file.exists() and surfaces) else None
     if scene_file.exists() and surfaces and sim is not None:
         import numpy as np
         import trimesh
@@ -147,22 +155,21 @@ def evaluate(workspace: Path, gt: Path) -> dict:
             geometry.vertices = sim.apply(np.asarray(geometry.vertices))
             figures[key] = surface_metrics(geometry, scene)
     if reprojection and sim is not None:
-        figures["fused_reprojection"] = _fused_reprojection(ws, gt_cams, sim)
+        figures["fused_reprojection"] = _fused_reprojection(ws, rec, gt_cams, sim)
     return figures
 
 
-def _wide_cameras(gt: Path, scene_file: Path) -> bool:
-    """A fisheye or 360 synthetic scene: the reprojection check projects through pinhole cameras."""
+def _wide_cameras(gt: Path) -> bool:
+    """A fisheye or 360 synthetic scene: the reprojection checks project through pinhole cameras."""
     from recon.synth.wide import load_views
 
-    return scene_file.exists() and bool(load_views(gt))
+    return (gt / "gt" / "scene.json").exists() and bool(load_views(gt))
 
 
-def _fused_reprojection(ws: Path, gt_cams: dict, to_gt, max_points: int = 200_000) -> dict:
+def _fused_reprojection(ws: Path, sparse, gt_cams: dict, to_gt, max_points: int = 200_000) -> dict:
     """Reprojection error of (a sample of) the fused cloud into the ground-truth cameras, in pixels,
     through ``to_gt``, the module doc's alignment (:mod:`recon.eval.reprojection`)."""
     import numpy as np
-    import pycolmap
     import trimesh
 
     from recon.eval.reprojection import DenseView, reprojection_errors
@@ -173,7 +180,6 @@ def _fused_reprojection(ws: Path, gt_cams: dict, to_gt, max_points: int = 200_00
     points = np.asarray(trimesh.load(published.fused).vertices)
     if len(points) > max_points:
         points = points[np.random.default_rng(0).choice(len(points), max_points, replace=False)]
-    sparse = pycolmap.Reconstruction(str(published.model()))
     photos = {image.name: sparse.camera(image.camera_id) for image in sparse.images.values() if image.has_pose}
     by_base = {Path(n).name: n for n in gt_cams}
     views = []

@@ -170,7 +170,13 @@ def test_workspace_alignment_is_refined_on_the_sparse_points(tmp_path):
     sparse points into the true cameras) recovers the model's frame (recon.eval.workspace)."""
     import pycolmap
 
-    from recon.eval.workspace import _estimated_poses, _load_gt, align_cameras, model_to_ground_truth
+    from recon.eval.workspace import (
+        _estimated_poses,
+        _load_gt,
+        _sparse_model,
+        align_cameras,
+        model_to_ground_truth,
+    )
     from recon.geometry.transforms import qvec_to_rotmat
     from recon.mvs.gt_workspace import points_from_depths
     from recon.mvs.views import ViewCamera
@@ -198,7 +204,7 @@ def test_workspace_alignment_is_refined_on_the_sparse_points(tmp_path):
     probe = np.array([p.xyz for p in rec.points3D.values()])
     expected = to_model.inverse().apply(probe)
     gt_cams = _load_gt(scene.root)
-    est = _estimated_poses(tmp_path / "ws", gt_cams)
+    est = _estimated_poses(_sparse_model(tmp_path / "ws"), gt_cams)
     start = align_cameras([est[n] for n in sorted(est)], [(gt_cams[n].R, gt_cams[n].t) for n in sorted(est)])
     refined = model_to_ground_truth(tmp_path / "ws", scene.root)
     extent = np.ptp(expected, axis=0).max()
