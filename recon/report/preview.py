@@ -54,12 +54,16 @@ def page_model(glb: bytes, max_faces: int, texture: int) -> bytes:
 def _charts(vertices: np.ndarray, faces: np.ndarray, texture: int):
     """xatlas charts packed for a ``texture``-texel atlas: vertices (split at seams), faces, UVs
     (trimesh's convention: v up) and the atlas' (width, height), at most ``texture``."""
+    import trimesh
     import xatlas
 
     atlas = xatlas.Atlas()
     atlas.add_mesh(np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(faces, np.uint32))
     charts = xatlas.ChartOptions()
     charts.max_iterations = 0  # grown once: on 30,000 faces 6.4 s, not 16.6 s; 67 % of the atlas used, not 72 %
+    # no chart over 2 % of the surface: on a 30,000-face zoo copy 422 charts, not 389, in 0.9 s, not 2.5 s
+    # (xatlas' cost grows with the charts' size); 60 % of the atlas used, not 62 %
+    charts.max_chart_area = float(trimesh.triangles.area(vertices[faces]).sum()) / 50
     pack = xatlas.PackOptions()
     pack.resolution = texture
     pack.padding = 2
@@ -97,10 +101,9 @@ def _bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, size: tuple[i
     weights = np.column_stack([1.0 - b.sum(axis=1), b])
     src_uv = np.einsum("nk,nkd->nd", weights, np.asarray(source.visual.uv, np.float64)[src_faces[face]])
     h, w = source_image.shape[:2]
-    at = np.zeros((height, width, 2), np.float64)  # where each texel looks in the source texture
-    at[filled] = np.column_stack([src_uv[:, 0] * w, (1.0 - src_uv[:, 1]) * h])
+    atlas = np.zeros((height, width, 3), source_image.dtype)
     # not cv2.remap: it refuses sources over 32767 px a side, which a large atlas can be
-    atlas = np.round(sample_bilinear(source_image, at[..., 0], at[..., 1])).astype(source_image.dtype)
+    atlas[filled] = np.round(sample_bilinear(source_image, src_uv[:, 0] * w, (1.0 - src_uv[:, 1]) * h))
     if filled.any() and not filled.all():
         near = ndimage.distance_transform_edt(~filled, return_distances=False, return_indices=True)
         atlas = atlas[near[0], near[1]]

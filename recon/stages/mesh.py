@@ -34,7 +34,7 @@ def _drop_masked(ctx: StageContext, mesh):
 @register
 class Mesh(Stage):
     name = "mesh"
-    version = 2
+    version = 3
     Config = MeshConfig
     requires = (DenseScene, DepthMaps, FusedCloud)
     produces = SurfaceMesh

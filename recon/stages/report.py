@@ -48,7 +48,7 @@ class ReportConfig:
 @register
 class Report(Stage):
     name = "report"
-    version = 3
+    version = 4
     Config = ReportConfig
     requires = (MatchDatabase, SparseModel)
     optional = (DenseScene, DepthMaps, FusedCloud, SurfaceMesh, TexturedModel)

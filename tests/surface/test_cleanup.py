@@ -71,6 +71,18 @@ def test_decimate_reaches_target_and_keeps_shape():
     assert np.abs(r - 1).max() < 0.02
 
 
+def test_decimate_keeps_vertex_colours_where_they_were():
+    sphere = trimesh.creation.icosphere(subdivisions=5)
+    top = sphere.vertices[:, 2] > 0
+    sphere.visual.vertex_colors = np.where(top[:, None], [255, 0, 0, 255], [0, 0, 255, 255]).astype(np.uint8)
+    out = decimate(sphere, 2000)
+    colours = np.asarray(out.visual.vertex_colors)[:, :3]
+    away = np.abs(out.vertices[:, 2]) > 0.05  # clear of the border between the two halves
+    expected = np.where((out.vertices[:, 2] > 0)[:, None], [255, 0, 0], [0, 0, 255])
+    assert away.sum() > 500
+    assert np.array_equal(colours[away], expected[away])
+
+
 def test_clean_mesh_pipeline():
     mesh, sphere = _sphere_with_junk()
     out = clean_mesh(mesh, MeshOptions(min_component_fraction=0.01, target_faces=0))
