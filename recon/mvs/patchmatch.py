@@ -16,7 +16,9 @@ The variant follows Gipuma (Galliani et al., ICCV 2015) and ACMH/ACMM (Xu and Ta
   plane-induced homography, linearised at the window centre (one affine warp per window: a departure
   that saves a division per sample and is negligible unless the plane is seen nearly edge-on);
 * multi-view aggregation is the mean of the K best source costs (Gipuma's "best K"); this departs from
-  ACMM's probabilistic per-pixel view-selection weights, which cost more per hypothesis;
+  ACMM's probabilistic per-pixel view-selection weights, which cost more per hypothesis; a source the
+  plane projects outside of counts as an uncorrelated window (:data:`UNSEEN_COST`), so that a pixel
+  only two sources see can still pass the filter;
 * coarse to fine (ACMM's multi-scale scheme without its detail restorer): each finer level starts from
   the coarser planes re-intersected with its own pixel rays, then runs a few sweeps; there, each
   pixel is matched only against the K sources that were best for its upsampled plane (a cheap form
@@ -50,6 +52,11 @@ from recon.mvs.options import MVSOptions
 log = logging.getLogger(__name__)
 
 MAX_COST = 2.0
+#: photometric cost of a source the pixel's plane projects outside of: an uncorrelated window (NCC 0), not
+#: the worst match. With MAX_COST a pixel that only two sources see (the edges of a survey, of a walk)
+#: could never average under ``filter_max_cost`` over top_k = 3 sources (at best (0 + 0 + 2) / 3), and
+#: the zoo's aerial_grid kept 5 % of its surface seen by exactly 3 views (81 % of that seen by 4)
+UNSEEN_COST = 1.0
 ALL_VIEWS, SELECT_VIEWS, KEEP_VIEWS = 0, 1, 2  # view-mask modes of evaluate()
 _MIN_COS = 0.05  # hypotheses whose plane is seen at a grazing angle (|cos| below this) are rejected
 
@@ -420,8 +427,9 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
         cu = (h00 * px + h01 * py + h02) / cz
         cv = (h10 * px + h11 * py + h12) / cz
         if not (cu >= 0.0 and cv >= 0.0 and cu < width and cv < height):
-            costs[s] = worst
-            total += worst
+            unseen = UNSEEN_COST + geo_weight * geo_max
+            costs[s] = unseen
+            total += unseen
             continue
         # the homography is linearised at the window centre: over a window a few pixels wide the
         # second-order (perspective) term is negligible unless the plane is seen nearly edge-on

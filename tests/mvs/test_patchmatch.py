@@ -154,3 +154,17 @@ def test_filter_keeps_confirmed_pixels_only(plane):
     wrong = _state(depths[0] * 1.05, normal)
     dropped = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], wrong, OPTIONS)
     assert not dropped.depth.any()
+
+
+def test_a_pixel_that_two_sources_see_can_pass_the_filter(plane):
+    """The third source looks elsewhere: over top_k = 3 it counts as an uncorrelated window, not as
+    the worst match, so the true plane still costs less than filter_max_cost (with the worst-match cost
+    the mean could not go under (0 + 0 + 2) / 3)."""
+    images, cams, depths, normal = plane
+    away = pm.Camera(cams[3].K, cams[3].R, cams[3].t - np.array([10.0, 0.0, 0.0]))
+    level = pm.make_level(images[0], images[1:], cams[0], [cams[1], cams[2], away])
+    state = _state(depths[0], normal)
+    pm.evaluate_state(level, state, OPTIONS, pm.ALL_VIEWS)
+    inner = (slice(8, -8), slice(8, -8))
+    assert OPTIONS.top_k == 3
+    assert float(np.median(state.cost[inner])) < OPTIONS.filter_max_cost
