@@ -397,6 +397,7 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
     rx, ry, rz = _ray(kinv, x, y)
     cos = n0 * rx + n1 * ry + n2 * rz
     worst = MAX_COST + geo_weight * geo_max
+    unseen = UNSEEN_COST + geo_weight * geo_max
     if cos > -_MIN_COS * math.sqrt(rx * rx + ry * ry + rz * rz):
         return worst
     q = depth * cos  # n . X, negative
@@ -427,7 +428,6 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
         cu = (h00 * px + h01 * py + h02) / cz
         cv = (h10 * px + h11 * py + h12) / cz
         if not (cu >= 0.0 and cv >= 0.0 and cu < width and cv < height):
-            unseen = UNSEEN_COST + geo_weight * geo_max
             costs[s] = unseen
             total += unseen
             continue

@@ -58,11 +58,9 @@ def octree_depth(points: np.ndarray, depth: int) -> int:
     lo, hi = np.quantile(points, [ROBUST_SHARE, 1.0 - ROBUST_SHARE], axis=0)
     robust = float((hi - lo).max())
     full = float((points.max(0) - points.min(0)).max())
-    if robust <= 0:
+    if robust <= 0 or full < 2 * robust:
         return depth
-    if full < 2 * robust:
-        return depth
-    return depth + int(np.clip(np.round(np.log2(full / robust)), 0, MAX_EXTRA_LEVELS))
+    return depth + min(int(np.round(np.log2(full / robust))), MAX_EXTRA_LEVELS)
 
 
 def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | None = None,
@@ -71,9 +69,10 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | N
     (uint8) come from the nearest point's colour (``colors``: N x 3, uint8) when given."""
     o3d = open3d()
     points = np.asarray(points, np.float64)
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points @ OBLIQUE.T))
+    turned = points @ OBLIQUE.T
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(turned))
     pcd.normals = o3d.utility.Vector3dVector(np.asarray(normals, np.float64) @ OBLIQUE.T)
-    depth = octree_depth(points @ OBLIQUE.T, options.depth)
+    depth = octree_depth(turned, options.depth)
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         mesh, density = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(
             pcd, depth=depth, point_weight=options.point_weight, n_threads=1 if options.deterministic else -1)
