@@ -30,7 +30,10 @@ The variant follows Gipuma (Galliani et al., ICCV 2015) and ACMH/ACMM (Xu and Ta
 * geometric consistency (COLMAP's geom_consistency, ACMM's ACMM+geom): a second pass adds to each
   source's cost the capped forward-backward reprojection error through that source's depth map;
 * filtering keeps a pixel when its photometric cost is low and enough source depth maps agree with it
-  (reprojection error and relative depth difference below thresholds).
+  (reprojection error and relative depth difference below thresholds), and when the pixels of its
+  window that share its own intensity have texture (:func:`own_texture`): a pixel of a uniform region
+  beside an edge (sky beside a pole) matches on the edge alone and takes its depth (foreground
+  fattening), which no multi-view test catches, since every view sees the same halo.
 
 The kernels are plain loops over arrays (no Python objects inside), and random numbers come from a
 counter-based hash of (seed, sweep, pixel), so the same code can be ported to numba-cuda.
@@ -853,10 +856,63 @@ def geometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, sr
     return state
 
 
+#: :func:`own_texture` judges a pixel's own side only where it holds at least this share of the window's
+#: spatial weight; a pixel that few samples resemble (a texture's peak, an edge's blended pixel) varies
+#: at its own scale and counts as textured
+OWN_SIDE_MIN_SHARE = 0.25
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def own_texture(ref, window, sigma_spatial, sigma_color, out):
+    """Per pixel, the bilateral-weighted intensity standard deviation over the window's samples within
+    ``sigma_color / 2`` of the pixel's own intensity (into ``out``; infinite where those samples hold
+    less than :data:`OWN_SIDE_MIN_SHARE` of the window's spatial weight).
+
+    The matching cost's bilateral weights keep samples of another colour small but not zero, and where
+    the pixel's own side of an edge is uniform its whole correlation comes from the other side: a sky
+    pixel beside a pole matches at the pole's depth in every view. Counting only the pixel's own side
+    tells it apart from a textured one."""
+    height, width = ref.shape
+    start, step, count = window[0], window[1], window[2]
+    inv_s = 0.5 / (sigma_spatial * sigma_spatial)
+    inv_c = 0.5 / (sigma_color * sigma_color)
+    cut = 0.5 * sigma_color
+    for y in prange(height):
+        for x in range(width):
+            centre = ref[y, x]
+            spatial = 0.0
+            own = 0.0
+            total = 0.0
+            mean = 0.0
+            square = 0.0
+            for j in range(count):
+                dy = start + j * step
+                yy = min(max(y + dy, 0), height - 1)
+                for i in range(count):
+                    dx = start + i * step
+                    value = ref[yy, min(max(x + dx, 0), width - 1)]
+                    diff = value - centre
+                    near = math.exp(-(dx * dx + dy * dy) * inv_s)
+                    spatial += near
+                    if abs(diff) > cut:
+                        continue
+                    own += near
+                    w = near * math.exp(-diff * diff * inv_c)
+                    total += w
+                    mean += w * value
+                    square += w * value * value
+            if own < OWN_SIDE_MIN_SHARE * spatial:
+                out[y, x] = math.inf
+            else:
+                mean /= total
+                out[y, x] = math.sqrt(max(square / total - mean * mean, 0.0))
+
+
 def filter_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
                  src_depths: list[np.ndarray], state: State, options: MVSOptions) -> State:
-    """Zero the pixels whose photometric cost (mean over the top_k sources of ``state.views``) is high
-    or that fewer than ``filter_min_consistent`` source depth maps confirm."""
+    """Zero the pixels whose photometric cost (mean over the top_k sources of ``state.views``) is high,
+    that fewer than ``filter_min_consistent`` source depth maps confirm, or whose own side of the
+    window is untextured (:func:`own_texture` below ``min_texture``)."""
     level = make_level(ref, srcs, ref_cam, src_cams)
     photometric = State(state.depth, state.normal, np.zeros_like(state.cost), state.views.copy())
     evaluate_state(level, photometric, options, KEEP_VIEWS)
@@ -866,6 +922,11 @@ def filter_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_c
                              options.filter_max_reprojection, options.filter_max_depth_error)
     keep = (photometric.cost <= options.filter_max_cost) & (count >= options.filter_min_consistent)
     keep &= state.depth > 0
+    if options.min_texture > 0:
+        window, sigma_spatial, sigma_color, _, _ = _kernel_params(options)
+        texture = np.empty(level.ref.shape, np.float64)
+        own_texture(level.ref, window, sigma_spatial, sigma_color, texture)
+        keep &= texture >= options.min_texture
     return State(np.where(keep, state.depth, 0).astype(np.float32),
                  np.where(keep[..., None], state.normal, 0).astype(np.float32),
                  np.where(keep, photometric.cost, MAX_COST).astype(np.float32), photometric.views)

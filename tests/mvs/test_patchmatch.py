@@ -12,14 +12,20 @@ from recon.mvs.options import MVSOptions
 
 WIDTH, HEIGHT = 96, 72
 OPTIONS = MVSOptions(iterations=4)
+SKY = 0.75
 CENTRES = [(0.0, 0.0, 0.0), (0.3, 0.0, 0.0), (-0.3, 0.05, 0.0), (0.0, 0.25, 0.05)]
 
 
-def _plane_scene(tilt_deg: float = 25.0, depth: float = 2.0, seed: int = 0):
+def _plane_scene(tilt_deg: float = 25.0, depth: float = 2.0, seed: int = 0, uniform_from: float | None = None):
     """Images (float32 [0, 1]), cameras and true depth maps of views of the plane through (0, 0, depth)
-    whose normal is tilted by ``tilt_deg`` about the y axis; view 0 is the reference."""
+    whose normal is tilted by ``tilt_deg`` about the y axis; view 0 is the reference. With
+    ``uniform_from``, the plane is one flat light grey (as a sky is) beyond that coordinate along its
+    tilted x axis, and darker than it elsewhere."""
     rng = np.random.default_rng(seed)
     texture = cv2.resize(rng.random((48, 48)).astype(np.float32), (480, 480), interpolation=cv2.INTER_CUBIC)
+    if uniform_from is not None:
+        texture = 0.6 * texture
+        texture[:, int((uniform_from + 1.0) * 240):] = SKY
     t = np.radians(tilt_deg)
     normal = np.array([np.sin(t), 0.0, -np.cos(t)])
     e1 = np.array([np.cos(t), 0.0, np.sin(t)])
@@ -168,3 +174,29 @@ def test_a_pixel_that_two_sources_see_can_pass_the_filter(plane):
     inner = (slice(8, -8), slice(8, -8))
     assert OPTIONS.top_k == 3
     assert float(np.median(state.cost[inner])) < OPTIONS.filter_max_cost
+
+
+def test_the_uniform_side_of_an_edge_gets_no_depth():
+    """Pixels of a flat light grey region beside a textured one match on the texture alone (their
+    bilateral window's variance comes from across the edge): given the edge's plane they pass the cost and the
+    consistency tests, as a sky pixel beside a pole does at the pole's depth. Their own side of the
+    window is untextured, so the filter drops them and keeps the textured side."""
+    images, cams, depths, normal = _plane_scene(uniform_from=0.0)
+    state = _state(depths[0], normal)
+    without = dataclasses.replace(OPTIONS, min_texture=0.0)  # neither texture test
+    old = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], state, without)
+    new = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], state, OPTIONS)
+    grey = np.abs(images[0] - SKY) < 1e-6
+    edge = int(np.argmax(grey[HEIGHT // 2]))  # first grey column on the middle row
+    rows = slice(12, -12)
+    halo = (slice(12, -12), slice(edge + 1, edge + 3))  # grey, with texture in most of the window
+    assert grey[halo].all()
+    window, sigma_spatial, sigma_color, min_var, _ = pm._kernel_params(OPTIONS)
+    weights, centred = np.empty(window[2] ** 2), np.empty(window[2] ** 2)
+    variances = [pm.reference_patch(images[0], x, y, window, sigma_spatial, sigma_color, weights, centred)
+                 for y in range(12, HEIGHT - 12) for x in range(edge + 1, edge + 3)]
+    assert np.mean(np.array(variances) > min_var) > 0.8  # the matching's texture test lets most through
+    assert np.mean(old.depth[halo] > 0) > 0.8
+    textured = (rows, slice(12, edge - 6))
+    assert not new.depth[halo].any()
+    assert np.mean(new.depth[textured] > 0) >= np.mean(old.depth[textured] > 0) - 0.02 > 0.9
