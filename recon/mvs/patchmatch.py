@@ -865,8 +865,9 @@ OWN_SIDE_MIN_SHARE = 0.25
 @njit(parallel=True, cache=True, fastmath=True)
 def own_texture(ref, window, sigma_spatial, sigma_color, out):
     """Per pixel, the bilateral-weighted intensity standard deviation over the window's samples within
-    ``sigma_color / 2`` of the pixel's own intensity (into ``out``; infinite where those samples hold
-    less than :data:`OWN_SIDE_MIN_SHARE` of the window's spatial weight).
+    ``sigma_color / 2`` of the pixel's own intensity (into ``out``; 1, above any standard deviation of
+    intensities in [0, 1], where those samples hold less than :data:`OWN_SIDE_MIN_SHARE` of the window's
+    spatial weight).
 
     The matching cost's bilateral weights keep samples of another colour small but not zero, and where
     the pixel's own side of an edge is uniform its whole correlation comes from the other side: a sky
@@ -902,7 +903,7 @@ def own_texture(ref, window, sigma_spatial, sigma_color, out):
                     mean += w * value
                     square += w * value * value
             if own < OWN_SIDE_MIN_SHARE * spatial:
-                out[y, x] = math.inf
+                out[y, x] = 1.0
             else:
                 mean /= total
                 out[y, x] = math.sqrt(max(square / total - mean * mean, 0.0))
