@@ -876,33 +876,36 @@ def own_texture(ref, window, sigma_spatial, sigma_color, out):
     height, width = ref.shape
     start, step, count = window[0], window[1], window[2]
     inv_s = 0.5 / (sigma_spatial * sigma_spatial)
+    near = np.empty(count * count)  # the samples' spatial weights, the same around every pixel
+    spatial = 0.0
+    for j in range(count):
+        for i in range(count):
+            dy, dx = start + j * step, start + i * step
+            near[j * count + i] = math.exp(-(dx * dx + dy * dy) * inv_s)
+            spatial += near[j * count + i]
+    least_own = OWN_SIDE_MIN_SHARE * spatial
     inv_c = 0.5 / (sigma_color * sigma_color)
     cut = 0.5 * sigma_color
     for y in prange(height):
         for x in range(width):
             centre = ref[y, x]
-            spatial = 0.0
             own = 0.0
             total = 0.0
             mean = 0.0
             square = 0.0
             for j in range(count):
-                dy = start + j * step
-                yy = min(max(y + dy, 0), height - 1)
+                yy = min(max(y + start + j * step, 0), height - 1)
                 for i in range(count):
-                    dx = start + i * step
-                    value = ref[yy, min(max(x + dx, 0), width - 1)]
+                    value = ref[yy, min(max(x + start + i * step, 0), width - 1)]
                     diff = value - centre
-                    near = math.exp(-(dx * dx + dy * dy) * inv_s)
-                    spatial += near
                     if abs(diff) > cut:
                         continue
-                    own += near
-                    w = near * math.exp(-diff * diff * inv_c)
+                    own += near[j * count + i]
+                    w = near[j * count + i] * math.exp(-diff * diff * inv_c)
                     total += w
                     mean += w * value
                     square += w * value * value
-            if own < OWN_SIDE_MIN_SHARE * spatial:
+            if own < least_own:
                 out[y, x] = 1.0
             else:
                 mean /= total
