@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from recon.files import atomic
+from recon.mvs.fused_ply import keep_points, keep_visibility, read_points, vertex_count
 from recon.options import opt
 from recon.products import DenseScene, DepthMaps, FusedCloud
 from recon.stage import Stage, StageContext, StageError, register
@@ -24,12 +25,17 @@ class FusionConfig:
     keep_visibility: bool = opt(False, "keep COLMAP's fused.ply.vis (the views that saw each point, which COLMAP's "
                                        "Delaunay mesher reads); no recon stage reads it, and it is as large as "
                                        "the cloud")
+    free_space: bool = opt(True, "drop points that more views see through (their depth maps hold a surface behind "
+                                 "the point) than agree with: an object in some photos only, as a parked car, "
+                                 "is not kept (recon.mvs.free_space)")
+    free_space_margin: float = opt(0.03, "a view sees through a point when its depths around the point's pixel "
+                                         "all lie beyond the point by more than this (relative)", gt=0)
 
 
 @register
 class Fusion(Stage):
     name = "fusion"
-    version = 1
+    version = 2
     Config = FusionConfig
     requires = (DenseScene, DepthMaps)
     produces = FusedCloud
@@ -57,27 +63,37 @@ class Fusion(Stage):
             visibility = tmp.with_name(tmp.name + ".vis")  # COLMAP writes it beside the PLY
             try:
                 pycolmap.stereo_fusion(str(tmp), str(scratch), options=opts, output_type="PLY")
+                dropped = _drop_free_space(ctx, cfg, tmp, visibility) if cfg.free_space else 0
                 if cfg.keep_visibility and visibility.exists():
                     visibility.replace(ctx.output.visibility)
             finally:
                 visibility.unlink(missing_ok=True)
-            points = _vertex_count(tmp)
+            points = vertex_count(tmp)
             if points == 0:  # (trimesh reads an empty PLY as an empty scene, with no vertices)
                 raise StageError("fusion: no point was seen consistently by enough views (too few registered "
                                  "photos, or depth maps mostly empty); lower fusion.min_num_pixels or check the "
                                  "mvs depth maps")
-        return {"points": points}
+        return {"points": points, "free_space_dropped": dropped}
 
 
-def _vertex_count(ply: Path) -> int:
-    """The vertex count a PLY file's header declares (0 for a missing or empty file)."""
-    try:
-        with open(ply, "rb") as f:
-            for line in f:
-                if line.startswith(b"element vertex"):
-                    return int(line.split()[2])
-                if line.strip() == b"end_header":
-                    break
-    except (OSError, ValueError, IndexError):
-        pass
-    return 0
+def _drop_free_space(ctx: StageContext, cfg: FusionConfig, ply: Path, visibility: Path) -> int:
+    """Remove from the fused cloud (and its visibility record) the points more views see through than
+    agree with; how many went."""
+    from recon.mvs.colmap_io import read_depth_map
+    from recon.mvs.free_space import in_free_space
+
+    if vertex_count(ply) == 0:
+        return 0
+    depth_maps = ctx.input(DepthMaps)
+    points = read_points(ply)
+    views = ((view, read_depth_map(path)) for view in ctx.input(DenseScene).views()
+             if (path := depth_maps.depth_map(view.name)).exists())
+    drop = in_free_space(points, views, cfg.max_depth_error, cfg.free_space_margin)
+    if drop.any():
+        keep_points(ply, ~drop)
+        if visibility.exists():
+            keep_visibility(visibility, ~drop)
+    ctx.log.info("fusion: %d of %d points dropped: more views see through them than agree with them",
+                 int(drop.sum()), len(points))
+    return int(drop.sum())
+

@@ -34,7 +34,7 @@ def _drop_masked(ctx: StageContext, mesh):
 @register
 class Mesh(Stage):
     name = "mesh"
-    version = 3
+    version = 4
     Config = MeshConfig
     requires = (DenseScene, DepthMaps, FusedCloud)
     produces = SurfaceMesh

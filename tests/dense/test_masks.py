@@ -78,6 +78,21 @@ def test_faces_over_masked_pixels_go_and_the_subject_stays():
     assert np.abs(centres[in_view, :2]).max() <= 0.7
 
 
+def test_a_face_a_pixel_off_the_subjects_outline_stays():
+    """The mesh's own error puts faces on the silhouette a pixel to either side of the mask's edge:
+    a face one pixel over the background stays, three pixels over it goes."""
+    view = _looking_down()  # ground at depth 5: a pixel is 0.025 wide; columns < 100 (x < 0) are the subject
+    mask = np.zeros((200, 200), bool)
+    mask[:, :100] = True
+    pixel = 5.0 / 200.0
+    centres = {"inside": -10.5 * pixel, "one_px_over": 0.5 * pixel, "three_px_over": 2.5 * pixel}
+    tiny = np.array([[-0.002, -0.002, 0.0], [0.002, -0.002, 0.0], [0.0, 0.002, 0.0]])
+    vertices = np.vstack([tiny + [x, 0.0, 0.0] for x in centres.values()])
+    faces = np.arange(len(vertices)).reshape(-1, 3)[:, ::-1]  # facing up, towards the camera
+    bad = masked_faces(vertices, faces, [view], {view.name: mask})
+    assert dict(zip(centres, bad.tolist())) == {"inside": False, "one_px_over": False, "three_px_over": True}
+
+
 FULL = Path(__file__).resolve().parents[2] / "pipelines" / "full.yaml"
 QUICK = ["-o", "undistort.max_image_size=320", "-o", "mvs.max_image_size=320", "-o", "mesh.depth=8",
          "-o", "mesh.target_faces=40000", "-o", "texture.max_faces=20000"]
