@@ -1,4 +1,4 @@
-"""texture: view selection, UV atlas, baking from the undistorted photos, seam levelling; exports
+"""texture: view selection, UV atlas, baking from the undistorted photos, seam blending; exports
 textured.glb (embedded texture), textured.obj + .mtl + .png, and the vertex-coloured mesh.ply."""
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ class Texture(Stage):
     Config = TextureConfig
     requires = (SparseModel, DenseScene, SurfaceMesh)
     produces = TexturedModel
-    summary = "texture atlas from the photos with seam levelling: textured.glb, textured.obj"
+    summary = "texture atlas from the photos with seam blending: textured.glb, textured.obj"
 
     def run(self, ctx: StageContext, cfg: TextureConfig) -> dict:
         import cv2

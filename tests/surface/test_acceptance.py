@@ -65,7 +65,7 @@ def test_seam_levelling(demo_scene, poisson_result):
     photos = with_gains(demo_scene.images)
     mesh = poisson_result[0]
     raw = seam_jump(texture_mesh(mesh, photos, demo_scene.cameras, TextureOptions(levelling=False, seam_blending=False)))
-    assert seam_jump(texture_mesh(mesh, photos, demo_scene.cameras)) < 0.5 * raw
+    assert seam_jump(texture_mesh(mesh, photos, demo_scene.cameras, TextureOptions(levelling=True))) < 0.5 * raw
 
 
 def test_meshing_and_texturing_time(poisson_result):

@@ -77,7 +77,8 @@ def _transient(scene, count: int = 4, radius: int = 14):
     return photos, pixels[best]
 
 
-def _psnr_near(textured, scene, pixel, half: int = 30) -> float:
+def _psnr_near(textured, scene, pixel, half: int = 15) -> float:
+    """PSNR in the hold-out view over a window the size of the painted disc (radius 14 px in the photos)."""
     gt = scene.holdout_images[0]
     image, mask = render(textured, scene.holdout_cameras[0], gt.shape[1], gt.shape[0])
     window = np.zeros_like(mask)

@@ -36,8 +36,9 @@ def test_levelling_halves_seam_jumps(small_scene, mesh):
     photos = with_gains(small_scene.images)
     raw = seam_jump(texture_mesh(mesh, photos, small_scene.cameras,
                                  TextureOptions(levelling=False, seam_blending=False)))
-    global_only = seam_jump(texture_mesh(mesh, photos, small_scene.cameras, TextureOptions(seam_blending=False)))
-    levelled = seam_jump(texture_mesh(mesh, photos, small_scene.cameras))
+    global_only = seam_jump(texture_mesh(mesh, photos, small_scene.cameras,
+                                         TextureOptions(levelling=True, seam_blending=False)))
+    levelled = seam_jump(texture_mesh(mesh, photos, small_scene.cameras, TextureOptions(levelling=True)))
     assert global_only < 0.6 * raw
     assert levelled < 0.5 * raw and levelled < global_only
 

@@ -2,7 +2,7 @@
 
 Steps: per-face view quality with occlusion tests (:mod:`.views`), views inconsistent with the
 others dropped per face (:mod:`.consistency`), one view per face by graph cuts
-(:mod:`.selection`), global seam levelling (:mod:`.levelling`), an atlas of the patches' projections
+(:mod:`.selection`), global seam levelling if asked for (:mod:`.levelling`), an atlas of the patches' projections
 (:mod:`.atlas`), baking (:mod:`.bake`), local blending along seams (:mod:`.blending`).
 """
 
