@@ -43,6 +43,9 @@ class TextureOptions:
     expansion_cycles: int = opt(2, "alpha-expansion sweeps over all views in view selection", ge=0, le=20)
     photo_consistency: bool = opt(True, "drop, per face, views whose colour there disagrees with most of its views "
                                         "(a car or person in some photos only), after their exposure is evened out")
+    colour_calibration: bool = opt(True, "even out the photos' exposure, white balance and vignetting before "
+                                         "texturing, estimated from the colours they show of the same faces "
+                                         "(recon.surface.texture.photometric)")
     levelling: bool = opt(False, "global colour adjustment between patches (Lempitsky and Ivanov 2007); off by "
                                  "default: on the scene zoo it lowered held-out PSNR on 12 of 15 scenes (mean -0.66 dB; "
                                  "seams fall on creases, where the two photos' colours differ for reasons other than "

@@ -1,7 +1,8 @@
 """Texture mapping of a mesh from its photos (after Waechter et al. 2014, "Let There Be Color!").
 
-Steps: per-face view quality with occlusion tests (:mod:`.views`), views inconsistent with the
-others dropped per face (:mod:`.consistency`), one view per face by graph cuts
+Steps: per-face view quality with occlusion tests (:mod:`.views`), the photos' exposure, white balance
+and vignetting evened out (:mod:`.photometric`), views inconsistent with the others dropped per face
+(:mod:`.consistency`), one view per face by graph cuts
 (:mod:`.selection`), global seam levelling if asked for (:mod:`.levelling`), an atlas of the patches' projections
 (:mod:`.atlas`), baking (:mod:`.bake`), local blending along seams (:mod:`.blending`).
 """
@@ -24,6 +25,7 @@ from recon.surface.texture.blending import blend_seams
 from recon.surface.texture.consistency import drop_inconsistent_views
 from recon.surface.texture.levelling import level_seams
 from recon.surface.texture.model import TexturedMesh
+from recon.surface.texture.photometric import calibrate_photos
 from recon.surface.texture.selection import select_views
 from recon.surface.texture.topology import face_adjacency, patches
 from recon.surface.texture.views import view_quality
@@ -60,8 +62,12 @@ def texture_mesh(mesh: trimesh.Trimesh, images: Sequence[np.ndarray], cameras: S
     quality = view_quality(vertices, faces, images, cameras, depths, options.min_view_cosine,
                            options.border_margin)
     lap("visibility")
+    if options.colour_calibration:
+        calibration = calibrate_photos(quality, vertices, faces, images, cameras)
+        photos = [calibration.apply(j, photo, cam) for j, (photo, cam) in enumerate(zip(photos, cameras))]
+        lap("colour calibration")
     if options.photo_consistency:
-        quality = drop_inconsistent_views(quality, vertices, faces, images, cameras)
+        quality = drop_inconsistent_views(quality, vertices, faces, photos, cameras)
         lap("photo-consistency")
     pairs, edge_vertices = face_adjacency(faces)
     edge_length = np.linalg.norm(vertices[edge_vertices[:, 0]] - vertices[edge_vertices[:, 1]], axis=1)

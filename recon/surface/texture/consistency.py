@@ -63,12 +63,12 @@ def inconsistent(face: np.ndarray, view: np.ndarray, colours: np.ndarray, n_face
     out = np.zeros(len(face), bool)
     for _ in range(2):
         use = judged & ~out
-        median = _face_median(face, np.where(use[:, None], colours, np.nan), n_faces)
+        median = face_median(face, np.where(use[:, None], colours, np.nan), n_faces)
         use &= np.all(median[face] > _BRIGHT, axis=1)  # a gain is a ratio: not from dark colours
-        gain = _view_median(view[use], colours[use] / median[face[use]], n_views)
+        gain = view_median(view[use], colours[use] / median[face[use]], n_views)
         corrected = np.log(colours / gain[view] + _DARK)
-        distance = np.linalg.norm(corrected - _face_median(face, corrected, n_faces)[face], axis=1)
-        spread = 1.4826 * _face_median(face, distance[:, None], n_faces)[:, 0]
+        distance = np.linalg.norm(corrected - face_median(face, corrected, n_faces)[face], axis=1)
+        spread = 1.4826 * face_median(face, distance[:, None], n_faces)[:, 0]
         out = judged & (distance > np.maximum(SPREAD * spread, FLOOR)[face])
     kept = counts - np.bincount(face[out], minlength=n_faces)
     return out & (2 * kept[face] > counts[face])
@@ -88,7 +88,7 @@ def drop_inconsistent_views(quality: np.ndarray, vertices: np.ndarray, faces: np
     return quality
 
 
-def _face_median(face: np.ndarray, values: np.ndarray, n_faces: int, chunk: int = 1 << 21) -> np.ndarray:
+def face_median(face: np.ndarray, values: np.ndarray, n_faces: int, chunk: int = 1 << 21) -> np.ndarray:
     """Per face the median of each column of ``values`` (E, C; NaN entries left out) over its entries,
     which are sorted by face; NaN where a face has none. Faces are taken in blocks, each as a dense
     (faces, most views, C) array sorted along its views (NaN and empty slots as +inf, at the end)."""
@@ -110,7 +110,7 @@ def _face_median(face: np.ndarray, values: np.ndarray, n_faces: int, chunk: int 
     return out
 
 
-def _view_median(view: np.ndarray, values: np.ndarray, n_views: int) -> np.ndarray:
+def view_median(view: np.ndarray, values: np.ndarray, n_views: int) -> np.ndarray:
     """Per view the median of each column of ``values`` (E, C) over its entries; 1 where it has none."""
     out = np.ones((n_views, values.shape[1]))
     order = np.argsort(view, kind="stable")
