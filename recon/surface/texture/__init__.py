@@ -64,7 +64,7 @@ def texture_mesh(mesh: trimesh.Trimesh, images: Sequence[np.ndarray], cameras: S
     lap("visibility")
     if options.colour_calibration:
         calibration = calibrate_photos(quality, vertices, faces, images, cameras)
-        photos = [calibration.apply(j, photo, cam) for j, (photo, cam) in enumerate(zip(photos, cameras))]
+        photos = [calibration.apply(j, photo, cam) for j, (photo, cam) in enumerate(zip(photos, cameras, strict=True))]
         lap("colour calibration")
     if options.photo_consistency:
         quality = drop_inconsistent_views(quality, vertices, faces, photos, cameras)
