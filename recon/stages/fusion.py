@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from recon.files import atomic
+from recon.mvs.free_space import MARGIN
 from recon.mvs.fused_ply import keep_points, keep_visibility, read_points, vertex_count
 from recon.options import opt
 from recon.products import DenseScene, DepthMaps, FusedCloud
@@ -28,7 +29,7 @@ class FusionConfig:
     free_space: bool = opt(True, "drop points that more views see through (their depth maps hold a surface behind "
                                  "the point) than agree with: an object in some photos only, as a parked car, "
                                  "is not kept (recon.mvs.free_space)")
-    free_space_margin: float = opt(0.03, "a view sees through a point when its depths around the point's pixel "
+    free_space_margin: float = opt(MARGIN, "a view sees through a point when its depths around the point's pixel "
                                          "all lie beyond the point by more than this (relative)", gt=0)
 
 
