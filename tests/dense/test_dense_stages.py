@@ -180,3 +180,22 @@ def test_fusion_is_reproducible(dense_workspace, small_scene, tmp_path):
         assert done.returncode == 0, done.stderr
         clouds.append(next(ws.glob(".recon/cache/fusion/*/fused.ply")).read_bytes())
     assert clouds[0] == clouds[1] == clouds[2]
+
+
+def test_mesh_faces_the_views_see_through_can_be_dropped(dense_workspace, small_scene, tmp_path):
+    """mesh.free_space: faces whose centre more views see through than agree with go (Poisson's surface
+    where the views saw nothing), from the same surface; what stays is at least as accurate."""
+    import shutil
+
+    ws = tmp_path / "ws"
+    shutil.copytree(dense_workspace, ws, symlinks=True)
+    done = run_cli(ws, small_scene, "mesh.free_space=true")
+    assert done.returncode == 0, done.stderr
+    runs = {m["config"]["free_space"]: m["summary"] for m in
+            (json.loads(p.read_text()) for p in (ws / ".recon" / "cache" / "mesh").glob("*/manifest.json"))}
+    dropped = runs[True]["free_space_faces_dropped"]
+    assert dropped > 0 and runs[False]["free_space_faces_dropped"] == 0
+    assert runs[True]["faces"] == runs[False]["faces"] - dropped
+    accuracy = {k: recon.api.evaluate(w, small_scene)["mesh"]["accuracy@0.005"] for k, w in
+                (("before", dense_workspace), ("after", ws))}
+    assert accuracy["after"] >= accuracy["before"] - 0.1, accuracy
