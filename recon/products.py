@@ -288,6 +288,15 @@ class DepthMaps(Product):
     def depth_map(self, name: str, kind: str = "geometric") -> Path:
         return self.folder / "depth_maps" / f"{name}.{kind}.bin"
 
+    def of_views(self, views: list):
+        """(view, its final depth map) for each of ``views`` that has one, read one at a time."""
+        from recon.mvs.colmap_io import read_depth_map
+
+        for view in views:
+            path = self.depth_map(view.name)
+            if path.exists():
+                yield view, read_depth_map(path)
+
 
 class FusedCloud(Product):
     """fusion: the fused point cloud with normals and colours; with ``fusion.keep_visibility``, COLMAP's

@@ -35,7 +35,8 @@ def _read(ply: Path) -> tuple[list[bytes], np.ndarray]:
               for line in header if line.startswith(b"property ")]
     if not any(line.startswith(b"format binary_little_endian") for line in header):
         raise ValueError(f"{ply}: not a binary little-endian PLY")
-    return header, np.frombuffer(data, dtype=np.dtype(fields), count=vertex_count(ply), offset=end)
+    count = next(int(line.split()[2]) for line in header if line.startswith(b"element vertex"))
+    return header, np.frombuffer(data, dtype=np.dtype(fields), count=count, offset=end)
 
 
 def read_points(ply: Path) -> np.ndarray:

@@ -80,15 +80,12 @@ class Fusion(Stage):
 def _drop_free_space(ctx: StageContext, cfg: FusionConfig, ply: Path, visibility: Path) -> int:
     """Remove from the fused cloud (and its visibility record) the points more views see through than
     agree with; how many went."""
-    from recon.mvs.colmap_io import read_depth_map
     from recon.mvs.free_space import in_free_space
 
     if vertex_count(ply) == 0:
         return 0
-    depth_maps = ctx.input(DepthMaps)
     points = read_points(ply)
-    views = ((view, read_depth_map(path)) for view in ctx.input(DenseScene).views()
-             if (path := depth_maps.depth_map(view.name)).exists())
+    views = ctx.input(DepthMaps).of_views(ctx.input(DenseScene).views())
     drop = in_free_space(points, views, cfg.max_depth_error, cfg.free_space_margin)
     if drop.any():
         keep_points(ply, ~drop)

@@ -39,12 +39,9 @@ def _in_free_space(ctx: StageContext, mesh) -> np.ndarray:
     """Boolean per face: more views see through its centre than agree with it (:mod:`recon.mvs.free_space`).
     Poisson closes and extends the surface where the fused points stop; the depth maps tell where the
     views saw nothing there."""
-    from recon.mvs.colmap_io import read_depth_map
     from recon.mvs.free_space import AGREE, MARGIN, in_free_space
 
-    depth_maps = ctx.input(DepthMaps)
-    views = ((view, read_depth_map(path)) for view in ctx.input(DenseScene).views()
-             if (path := depth_maps.depth_map(view.name)).exists())
+    views = ctx.input(DepthMaps).of_views(ctx.input(DenseScene).views())
     return in_free_space(np.asarray(mesh.triangles_center), views, AGREE, MARGIN)
 
 
@@ -58,19 +55,18 @@ class Mesh(Stage):
     summary = "Poisson (default) or TSDF surface, trimmed, cleaned, decimated: mesh.ply"
 
     def run(self, ctx: StageContext, cfg: MeshConfig) -> dict:
-        from recon.surface.cleanup import clean_mesh
+        from recon.surface.cleanup import clean_mesh, keep_faces
 
         if cfg.method == "poisson":
             mesh = self._poisson(ctx, cfg)
         else:
             mesh = self._tsdf(ctx, cfg)
         mesh = clean_mesh(mesh, cfg)
-        carved = _in_free_space(ctx, mesh) if cfg.free_space else np.zeros(len(mesh.faces), bool)
-        if carved.any():
-            mesh = mesh.copy()
-            mesh.update_faces(~carved)
-            mesh.remove_unreferenced_vertices()
-        ctx.log.info("mesh: %d faces dropped: more views see through them than agree with them", int(carved.sum()))
+        carved = 0
+        if cfg.free_space:
+            seen_through = _in_free_space(ctx, mesh)
+            mesh, carved = keep_faces(mesh, ~seen_through), int(seen_through.sum())
+            ctx.log.info("mesh: %d faces dropped: more views see through them than agree with them", carved)
         masked = _drop_masked(ctx, mesh)
         if masked is not None:
             mesh, dropped = masked
@@ -80,7 +76,7 @@ class Mesh(Stage):
                              "mesh.density_quantile or check dense/fused.ply")
         write_bytes(ctx.output.path, mesh.export(file_type="ply"))
         return {"method": cfg.method, "vertices": len(mesh.vertices), "faces": len(mesh.faces),
-                "watertight": bool(mesh.is_watertight), "free_space_faces_dropped": int(carved.sum()),
+                "watertight": bool(mesh.is_watertight), "free_space_faces_dropped": carved,
                 "masked_faces_dropped": masked[1] if masked else 0}
 
     def _poisson(self, ctx: StageContext, cfg: MeshConfig):
@@ -98,21 +94,15 @@ class Mesh(Stage):
     def _tsdf(self, ctx: StageContext, cfg: MeshConfig):
         import cv2
 
-        from recon.mvs.colmap_io import read_depth_map
         from recon.mvs.views import scaled_to
         from recon.surface.tsdf import tsdf_mesh
 
         dense = ctx.input(DenseScene)
-        depth_maps = ctx.input(DepthMaps)
         views = dense.views()
         if cfg.tsdf_max_views and len(views) > cfg.tsdf_max_views:
             views = [views[i] for i in np.linspace(0, len(views) - 1, cfg.tsdf_max_views).round().astype(int)]
         depths, images, cameras = [], [], []
-        for view in views:
-            path = depth_maps.depth_map(view.name)
-            if not path.exists():
-                continue
-            depth = read_depth_map(path)
+        for view, depth in ctx.input(DepthMaps).of_views(views):
             image = cv2.cvtColor(cv2.imread(str(dense.images / view.name)), cv2.COLOR_BGR2RGB)
             image = cv2.resize(image, (depth.shape[1], depth.shape[0]), interpolation=cv2.INTER_AREA)
             depths.append(depth)

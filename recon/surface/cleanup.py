@@ -16,7 +16,8 @@ from recon.surface.options import MeshOptions
 log = logging.getLogger(__name__)
 
 
-def _keep_faces(mesh: trimesh.Trimesh, keep: np.ndarray) -> trimesh.Trimesh:
+def keep_faces(mesh: trimesh.Trimesh, keep: np.ndarray) -> trimesh.Trimesh:
+    """A copy of ``mesh`` with the faces where ``keep`` is True and the vertices they use."""
     out = mesh.copy()
     out.update_faces(keep)
     out.remove_unreferenced_vertices()
@@ -35,7 +36,7 @@ def remove_degenerate_faces(mesh: trimesh.Trimesh, rel_area: float = 1e-12) -> t
     keep = ~repeated & ~tiny & unique
     log.debug("degenerate: %d repeated-vertex, %d zero-area, %d duplicate faces",
               repeated.sum(), (tiny & ~repeated).sum(), (~unique).sum())
-    return _keep_faces(mesh, keep)
+    return keep_faces(mesh, keep)
 
 
 def remove_non_manifold_edges(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -55,7 +56,7 @@ def remove_non_manifold_edges(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
         rank = np.arange(len(e)) - np.searchsorted(e, e)
         keep[fc[rank >= 2]] = False
     log.debug("non-manifold edges: %d faces dropped", (~keep).sum())
-    return _keep_faces(mesh, keep)
+    return keep_faces(mesh, keep)
 
 
 def split_non_manifold_vertices(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -104,7 +105,7 @@ def remove_small_components(mesh: trimesh.Trimesh, min_fraction: float) -> trime
     area = np.bincount(label, weights=mesh.area_faces, minlength=n)
     big = area >= min_fraction * area.sum()
     log.debug("components: %d of %d kept", big.sum(), n)
-    return _keep_faces(mesh, big[label])
+    return keep_faces(mesh, big[label])
 
 
 def decimate(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:

@@ -22,6 +22,7 @@ import trimesh
 from recon.geometry.transforms import project
 from recon.imaging.masks import mask_at
 from recon.mvs.views import ViewCamera, scaled_to
+from recon.surface.cleanup import keep_faces
 from recon.surface.raycast import render_ids, scene_of
 
 #: views are ray cast at most this size (longest side, px): enough to decide visibility
@@ -76,7 +77,5 @@ def drop_masked_faces(mesh: trimesh.Trimesh, views: list[ViewCamera], masks: dic
         if not bad.any():
             break
         dropped += int(bad.sum())
-        mesh = mesh.copy()
-        mesh.update_faces(~bad)
-        mesh.remove_unreferenced_vertices()
+        mesh = keep_faces(mesh, ~bad)
     return mesh, dropped
