@@ -370,6 +370,23 @@ def _warped_sums(srcs, s, cu, cv, dudx, dudy, dvdx, dvdy, window, weights, centr
 
 
 @njit(cache=True, fastmath=True)
+def _plane_row(kinv, q, n0, n1, n2):
+    """n^T K^-1 / q for the plane with normal n at n . X = q: the row that makes the plane's homography
+    to a source A + b m (:func:`view_geometry`)."""
+    return ((kinv[0, 0] * n0 + kinv[1, 0] * n1 + kinv[2, 0] * n2) / q,
+            (kinv[0, 1] * n0 + kinv[1, 1] * n1 + kinv[2, 1] * n2) / q,
+            (kinv[0, 2] * n0 + kinv[1, 2] * n1 + kinv[2, 2] * n2) / q)
+
+
+@njit(cache=True, fastmath=True)
+def _homography(A, b, s, m0, m1, m2):
+    """The plane-induced homography A[s] + b[s] m from reference to source ``s`` pixels, row by row."""
+    return (A[s, 0, 0] + b[s, 0] * m0, A[s, 0, 1] + b[s, 0] * m1, A[s, 0, 2] + b[s, 0] * m2,
+            A[s, 1, 0] + b[s, 1] * m0, A[s, 1, 1] + b[s, 1] * m1, A[s, 1, 2] + b[s, 1] * m2,
+            A[s, 2, 0] + b[s, 2] * m0, A[s, 2, 1] + b[s, 2] * m1, A[s, 2, 2] + b[s, 2] * m2)
+
+
+@njit(cache=True, fastmath=True)
 def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, window, kinv, A, b,
                     srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k, min_var, costs, scratch,
                     bound=-1.0):
@@ -403,24 +420,13 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
     unseen = UNSEEN_COST + geo_weight * geo_max
     if cos > -_MIN_COS * math.sqrt(rx * rx + ry * ry + rz * rz):
         return worst
-    q = depth * cos  # n . X, negative
-    m0 = (kinv[0, 0] * n0 + kinv[1, 0] * n1 + kinv[2, 0] * n2) / q
-    m1 = (kinv[0, 1] * n0 + kinv[1, 1] * n1 + kinv[2, 1] * n2) / q
-    m2 = (kinv[0, 2] * n0 + kinv[1, 2] * n1 + kinv[2, 2] * n2) / q
+    m0, m1, m2 = _plane_row(kinv, depth * cos, n0, n1, n2)
     for s in range(A.shape[0]):
         if not (mask >> s) & 1:
             continue
         if bound >= 0.0 and total > limit:
             return total / n_views
-        h00 = A[s, 0, 0] + b[s, 0] * m0
-        h01 = A[s, 0, 1] + b[s, 0] * m1
-        h02 = A[s, 0, 2] + b[s, 0] * m2
-        h10 = A[s, 1, 0] + b[s, 1] * m0
-        h11 = A[s, 1, 1] + b[s, 1] * m1
-        h12 = A[s, 1, 2] + b[s, 1] * m2
-        h20 = A[s, 2, 0] + b[s, 2] * m0
-        h21 = A[s, 2, 1] + b[s, 2] * m1
-        h22 = A[s, 2, 2] + b[s, 2] * m2
+        h00, h01, h02, h10, h11, h12, h20, h21, h22 = _homography(A, b, s, m0, m1, m2)
         width = dims[s, 0]
         height = dims[s, 1]
         cz = h20 * px + h21 * py + h22
@@ -454,6 +460,54 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
         costs[s] = cost
         total += cost
     return _mean_of_best(costs, mask, top_k, scratch)
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def remove_geometric_term(ref, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max, window,
+                          sigma_spatial, sigma_color, min_var, depth, normal, views, cost):
+    """Turn the geometric-consistency costs of the current hypotheses (``cost``, as :func:`evaluate`
+    and the sweeps leave them with ``src_depth``) into their photometric costs over each pixel's
+    view mask, by subtracting the mean reprojection term: what evaluate(KEEP_VIEWS) without the
+    geometric term would compute, without matching a window again (the filter needs the
+    photometric cost; matching is most of the work of a pass).
+
+    Exact only while each pixel's mask holds at most top_k sources, so that its cost is the plain
+    mean over the mask (masks chosen by SELECT_VIEWS); pixels whose window is untextured or whose
+    plane is seen edge-on get MAX_COST, as evaluate gives them.
+    """
+    height, width = ref.shape
+    n = window[2] * window[2]
+    for y in prange(height):
+        weights = np.empty(n)
+        centred = np.empty(n)
+        for x in range(width):
+            n0, n1, n2 = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
+            rx, ry, rz = _ray(kinv, x, y)
+            cos = n0 * rx + n1 * ry + n2 * rz
+            if (cos > -_MIN_COS * math.sqrt(rx * rx + ry * ry + rz * rz)
+                    or reference_patch(ref, x, y, window, sigma_spatial, sigma_color, weights,
+                                       centred) < min_var):
+                cost[y, x] = MAX_COST
+                continue
+            m0, m1, m2 = _plane_row(kinv, depth[y, x] * cos, n0, n1, n2)
+            px = x + 0.5
+            py = y + 0.5
+            term = 0.0
+            n_views = 0
+            for s in range(A.shape[0]):
+                if not (views[y, x] >> s) & 1:
+                    continue
+                n_views += 1
+                h00, h01, h02, h10, h11, h12, h20, h21, h22 = _homography(A, b, s, m0, m1, m2)
+                cz = h20 * px + h21 * py + h22
+                error = geo_max
+                if cz > 1e-6:
+                    cu = (h00 * px + h01 * py + h02) / cz
+                    cv = (h10 * px + h11 * py + h12) / cz
+                    if cu >= 0.0 and cv >= 0.0 and cu < dims[s, 0] and cv < dims[s, 1]:
+                        error = min(_reprojection_error(src_depth, s, cu, cv, px, py, M, c), geo_max)
+                term += geo_weight * error
+            cost[y, x] = cost[y, x] - term / n_views if n_views else MAX_COST
 
 
 @njit(cache=True, fastmath=True)
@@ -844,7 +898,9 @@ def geometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, sr
                     src_depths: list[np.ndarray], initial: State, depth_range: tuple[float, float],
                     options: MVSOptions, seed: int) -> State:
     """Geometric-consistency pass: sweeps whose cost adds the reprojection error through the source
-    depth maps (each the size of its source image), starting from the photometric ``initial``."""
+    depth maps (each the size of its source image), starting from the photometric ``initial``.
+    The returned state's costs are the photometric part alone, the matching cost
+    :func:`filter_depth` tests."""
     level = make_level(ref, srcs, ref_cam, src_cams)
     src_depth, _ = stack_images(src_depths)
     state = State(initial.depth.copy(), initial.normal.copy(), np.zeros_like(initial.cost),
@@ -853,7 +909,25 @@ def geometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, sr
     sweeps(level, state, options, depth_range, options.geometric_iterations,
            options.perturbation * 0.125, random_candidates=False, far_regions=False, seed=seed,
            first_sweep=1000, src_depth=src_depth)
+    if options.view_subset:
+        g = level.geometry
+        window, sigma_spatial, sigma_color, min_var, _ = _kernel_params(options)
+        remove_geometric_term(level.ref, level.dims, g.kinv, g.A, g.b, src_depth, g.M, g.c,
+                              options.geometric_weight, options.geometric_max_error, window,
+                              sigma_spatial, sigma_color, min_var, state.depth, state.normal,
+                              state.views, state.cost)
+    else:  # each pixel's cost is the mean of its best top_k among all sources: match again
+        evaluate_state(level, state, options, KEEP_VIEWS)
     return state
+
+
+def photometric_costs(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
+                      state: State, options: MVSOptions) -> State:
+    """``state`` with the photometric costs of its hypotheses over its view masks (for
+    :func:`filter_depth` when no geometric pass ran)."""
+    photometric = State(state.depth, state.normal, np.zeros_like(state.cost), state.views.copy())
+    evaluate_state(make_level(ref, srcs, ref_cam, src_cams), photometric, options, KEEP_VIEWS)
+    return photometric
 
 
 #: :func:`own_texture` judges a pixel's own side only where it holds at least this share of the window's
@@ -914,17 +988,16 @@ def own_texture(ref, window, sigma_spatial, sigma_color, out):
 
 def filter_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
                  src_depths: list[np.ndarray], state: State, options: MVSOptions) -> State:
-    """Zero the pixels whose photometric cost (mean over the top_k sources of ``state.views``) is high,
-    that fewer than ``filter_min_consistent`` source depth maps confirm, or whose own side of the
-    window is untextured (:func:`own_texture` below ``min_texture``)."""
+    """Zero the pixels whose photometric cost (``state.cost``, as :func:`geometric_depth` and
+    :func:`photometric_costs` give it) is high, that fewer than ``filter_min_consistent`` source
+    depth maps confirm, or whose own side of the window is untextured (:func:`own_texture` below
+    ``min_texture``)."""
     level = make_level(ref, srcs, ref_cam, src_cams)
-    photometric = State(state.depth, state.normal, np.zeros_like(state.cost), state.views.copy())
-    evaluate_state(level, photometric, options, KEEP_VIEWS)
     g = level.geometry
     src_depth, depth_dims = stack_images(src_depths)
     count = consistent_views(state.depth, g.kinv, g.A, g.b, src_depth, depth_dims, g.M, g.c,
                              options.filter_max_reprojection, options.filter_max_depth_error)
-    keep = (photometric.cost <= options.filter_max_cost) & (count >= options.filter_min_consistent)
+    keep = (state.cost <= options.filter_max_cost) & (count >= options.filter_min_consistent)
     keep &= state.depth > 0
     if options.min_texture > 0:
         window, sigma_spatial, sigma_color, _, _ = _kernel_params(options)
@@ -933,4 +1006,4 @@ def filter_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_c
         keep &= texture >= options.min_texture
     return State(np.where(keep, state.depth, 0).astype(np.float32),
                  np.where(keep[..., None], state.normal, 0).astype(np.float32),
-                 np.where(keep, photometric.cost, MAX_COST).astype(np.float32), photometric.views)
+                 np.where(keep, state.cost, MAX_COST).astype(np.float32), state.views)

@@ -123,6 +123,8 @@ def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
             state = patchmatch.geometric_depth(ref, srcs, ref_cam, src_cams, src_depths, state,
                                                (problem.depth_min, problem.depth_max), options,
                                                _seed(options, problem.ref))
+        else:
+            state = patchmatch.photometric_costs(ref, srcs, ref_cam, src_cams, state, options)
         state = patchmatch.filter_depth(ref, srcs, ref_cam, src_cams, src_depths, state, options)
         depth, normal = state.depth, state.normal
     else:

@@ -151,15 +151,41 @@ def test_geometric_term_penalises_disagreeing_depth_maps(plane):
     assert results[1] > results[0] + OPTIONS.geometric_weight  # errors of several pixels, capped at 3
 
 
+def _costed(images, cams, depth, normal, options=OPTIONS):
+    """The state of the planes (depth, normal) with their photometric costs, as the filter takes it."""
+    return pm.photometric_costs(images[0], images[1:], cams[0], cams[1:], _state(depth, normal), options)
+
+
 def test_filter_keeps_confirmed_pixels_only(plane):
     images, cams, depths, normal = plane
-    state = _state(depths[0], normal)
+    state = _costed(images, cams, depths[0], normal)
     kept = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], state, OPTIONS)
     assert (kept.depth[25:-25, 25:-25] > 0).all()
     assert ((kept.depth == 0) == (kept.normal == 0).all(axis=-1)).all()
-    wrong = _state(depths[0] * 1.05, normal)
+    wrong = _costed(images, cams, depths[0] * 1.05, normal)
     dropped = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], wrong, OPTIONS)
     assert not dropped.depth.any()
+
+
+def test_the_geometric_pass_leaves_the_photometric_costs_the_filter_tests(plane):
+    """geometric_depth subtracts the reprojection term from its costs rather than matching every window
+    again for the filter: the result must equal a photometric evaluation of its final planes over the
+    same view masks, where sources see the plane, miss it (the image borders) or disagree with it."""
+    images, cams, depths, normal = plane
+    options = dataclasses.replace(OPTIONS, top_k=2)  # masks of 2 of the 3 sources
+    rng = np.random.default_rng(1)
+    start = (depths[0] * rng.uniform(0.9, 1.1, depths[0].shape)).astype(np.float32)
+    sources = [d * 1.02 for d in depths[1:]]  # reprojection errors of a few pixels, some capped
+    state = pm.geometric_depth(images[0], images[1:], cams[0], cams[1:], sources, _state(start, normal),
+                               (1.0, 4.0), options, seed=0)
+    assert set(np.unique(state.views)) <= {0b011, 0b101, 0b110}
+    level = pm.make_level(images[0], images[1:], cams[0], cams[1:])
+    photometric = pm.State(state.depth, state.normal, np.zeros_like(state.cost), state.views.copy())
+    pm.evaluate_state(level, photometric, options, pm.KEEP_VIEWS)
+    np.testing.assert_allclose(state.cost, photometric.cost, atol=1e-4)
+    combined = pm.State(state.depth, state.normal, np.zeros_like(state.cost), state.views.copy())
+    pm.evaluate_state(level, combined, options, pm.KEEP_VIEWS, pm.stack_images(sources)[0])
+    assert np.median(combined.cost - photometric.cost) > 0.03  # the term taken out was not nothing
 
 
 def test_a_pixel_that_two_sources_see_can_pass_the_filter(plane):
@@ -182,7 +208,7 @@ def test_the_uniform_side_of_an_edge_gets_no_depth():
     consistency tests, as a sky pixel beside a pole does at the pole's depth. Their own side of the
     window is untextured, so the filter drops them and keeps the textured side."""
     images, cams, depths, normal = _plane_scene(uniform_from=0.0)
-    state = _state(depths[0], normal)
+    state = _costed(images, cams, depths[0], normal)
     without = dataclasses.replace(OPTIONS, min_texture=0.0)  # neither texture test
     old = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], state, without)
     new = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], state, OPTIONS)
