@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 _PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "<i2", "ushort": "<u2", "int": "<i4", "uint": "<u4",
               "float": "<f4", "double": "<f8"}
@@ -60,12 +61,20 @@ def keep_visibility(vis: Path, keep: np.ndarray) -> None:
     count = int(words[0]) | (int(words[1]) << 32)
     if count != len(keep):
         raise ValueError(f"{vis}: {count} points, the cloud has {len(keep)}")
-    spans, at = [], 2
+    lengths = np.diff(_record_starts(words, count))
+    records = words[2:2 + int(lengths.sum())][np.repeat(np.asarray(keep, bool), lengths)]
+    kept = int(np.count_nonzero(keep))
+    vis.write_bytes(np.concatenate([np.array([kept & 0xFFFFFFFF, kept >> 32], "<u4"), records]).tobytes())
+
+
+@njit(cache=True)
+def _record_starts(words, count):  # pragma: no cover - numba
+    """Where each point's record (its view count, then its views) starts in ``words``, and where the
+    last one ends: each start depends on the previous count, a walk numpy cannot vectorise."""
+    starts = np.empty(count + 1, np.int64)
+    at = 2
     for index in range(count):
-        n = int(words[at])
-        if keep[index]:
-            spans.append(words[at:at + 1 + n])
-        at += 1 + n
-    kept = int(keep.sum())
-    out = np.concatenate([np.array([kept & 0xFFFFFFFF, kept >> 32], dtype="<u4"), *spans])
-    vis.write_bytes(out.astype("<u4").tobytes())
+        starts[index] = at
+        at += 1 + words[at]
+    starts[count] = at
+    return starts
