@@ -36,6 +36,7 @@ class MVSOptions:
     filter_max_cost: float = opt(0.6, "filtering: largest matching cost (1 - NCC, mean of the K best views) kept", gt=0.0, le=2.0)
     filter_min_consistent: int = opt(2, "filtering: a pixel is kept when at least this many source depth maps agree with it", ge=0)
     filter_max_reprojection: float = opt(1.0, "filtering: largest forward-backward reprojection error (px) for a source to agree", gt=0.0)
-    filter_max_depth_error: float = opt(0.01, "filtering: largest relative depth difference for a source to agree", gt=0.0)
+    filter_max_depth_error: float = opt(0.01, "filtering: largest distance, relative to depth, between a source's surface point and the pixel's plane for the source to agree", gt=0.0)
+    filter_grazing_allowance: float = opt(3.0, "filtering (CPU backend): on a plane seen at a grazing angle from a source, the depth difference along its ray may exceed filter_max_depth_error by up to this factor (1: a plain depth difference)", ge=1.0)
     num_threads: int = opt(0, "CPU threads for the kernels (0 = all cores)", ge=0)
     seed: int = opt(0, "random seed; results are identical for equal seeds and inputs, whatever the thread count", ge=0)

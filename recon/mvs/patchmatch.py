@@ -30,10 +30,10 @@ The variant follows Gipuma (Galliani et al., ICCV 2015) and ACMH/ACMM (Xu and Ta
 * geometric consistency (COLMAP's geom_consistency, ACMM's ACMM+geom): a second pass adds to each
   source's cost the capped forward-backward reprojection error through that source's depth map;
 * filtering keeps a pixel when its photometric cost is low and enough source depth maps agree with it
-  (reprojection error and relative depth difference below thresholds), and when the pixels of its
-  window that share its own intensity have texture (:func:`own_texture`): a pixel of a uniform region
-  beside an edge (sky beside a pole) matches on the edge alone and takes its depth (foreground
-  fattening), which no multi-view test catches, since every view sees the same halo.
+  (reprojection error, and distance from the pixel's plane relative to depth, below thresholds), and
+  when the pixels of its window that share its own intensity have texture (:func:`own_texture`): a
+  pixel of a uniform region beside an edge (sky beside a pole) matches on the edge alone and takes its
+  depth (foreground fattening), which no multi-view test catches, since every view sees the same halo.
 
 The kernels are plain loops over arrays (no Python objects inside), and random numbers come from a
 counter-based hash of (seed, sweep, pixel), so the same code can be ported to numba-cuda.
@@ -730,12 +730,22 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def consistent_views(depth, kinv, A, b, src_depth, dims, M, c, max_reprojection, max_depth_error):
+def consistent_views(depth, normal, kinv, A, b, src_depth, dims, M, c, max_reprojection, max_depth_error,
+                     grazing_allowance):
     """Per pixel, how many source depth maps agree with its depth: the point projects into the
-    source where the source depth differs by less than ``max_depth_error`` (relative) and maps back
-    to within ``max_reprojection`` px of the pixel."""
+    source where the source's surface point lies within ``max_depth_error`` (relative to the source
+    depth) of the pixel's plane, and maps back to within ``max_reprojection`` px of the pixel.
+
+    The distance is measured across the plane (``normal``, reference camera frame), not along the
+    source's ray: on a surface seen at a grazing angle, neighbouring pixels' rays meet it far apart
+    and their depths differ by several per cent per pixel, so a depth difference of ``max_depth_error``
+    along the ray rejects estimates that lie on the surface. The difference along the ray is
+    multiplied by the cosine between the plane's normal and the source's ray, floored at
+    1 / ``grazing_allowance`` (1: the plain relative depth difference), so that an uncertain normal
+    widens the test by that factor at most. A plain ``max_depth_error`` where ``normal`` is zero."""
     height, width = depth.shape
     count = np.zeros((height, width), np.int32)
+    least_cos = 1.0 / grazing_allowance
     for y in prange(height):
         for x in range(width):
             d = depth[y, x]
@@ -743,6 +753,7 @@ def consistent_views(depth, kinv, A, b, src_depth, dims, M, c, max_reprojection,
                 continue
             px = x + 0.5
             py = y + 0.5
+            n0, n1, n2 = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
             for s in range(A.shape[0]):
                 hz = d * (A[s, 2, 0] * px + A[s, 2, 1] * py + A[s, 2, 2]) + b[s, 2]
                 if hz <= 0.0:
@@ -752,11 +763,29 @@ def consistent_views(depth, kinv, A, b, src_depth, dims, M, c, max_reprojection,
                 if not (u >= 0.0 and v >= 0.0 and u < dims[s, 0] and v < dims[s, 1]):
                     continue
                 z = src_depth[s, int(v), int(u)]
-                if not z > 0.0 or abs(hz - z) > max_depth_error * z:
+                if not z > 0.0:
+                    continue
+                # the source's ray through (u, v) in the reference frame: K_ref^-1 M (u, v, 1)
+                r0, r1, r2 = _ray_of(kinv, M, s, u, v)
+                cos = abs(n0 * r0 + n1 * r1 + n2 * r2) / math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+                if n0 == 0.0 and n1 == 0.0 and n2 == 0.0:
+                    cos = 1.0
+                if abs(hz - z) * max(cos, least_cos) > max_depth_error * z:
                     continue
                 if _reprojection_error(src_depth, s, u, v, px, py, M, c) <= max_reprojection:
                     count[y, x] += 1
     return count
+
+
+@njit(cache=True, fastmath=True)
+def _ray_of(kinv, M, s, u, v):
+    """Direction, in the reference camera frame, of source ``s``'s ray through its pixel (u, v)."""
+    m0 = M[s, 0, 0] * u + M[s, 0, 1] * v + M[s, 0, 2]
+    m1 = M[s, 1, 0] * u + M[s, 1, 1] * v + M[s, 1, 2]
+    m2 = M[s, 2, 0] * u + M[s, 2, 1] * v + M[s, 2, 2]
+    return (kinv[0, 0] * m0 + kinv[0, 1] * m1 + kinv[0, 2] * m2,
+            kinv[1, 0] * m0 + kinv[1, 1] * m1 + kinv[1, 2] * m2,
+            kinv[2, 0] * m0 + kinv[2, 1] * m1 + kinv[2, 2] * m2)
 
 
 # --- drivers over a pyramid ---------------------------------------------------------------------
@@ -995,8 +1024,9 @@ def filter_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_c
     level = make_level(ref, srcs, ref_cam, src_cams)
     g = level.geometry
     src_depth, depth_dims = stack_images(src_depths)
-    count = consistent_views(state.depth, g.kinv, g.A, g.b, src_depth, depth_dims, g.M, g.c,
-                             options.filter_max_reprojection, options.filter_max_depth_error)
+    count = consistent_views(state.depth, state.normal, g.kinv, g.A, g.b, src_depth, depth_dims, g.M, g.c,
+                             options.filter_max_reprojection, options.filter_max_depth_error,
+                             options.filter_grazing_allowance)
     keep = (state.cost <= options.filter_max_cost) & (count >= options.filter_min_consistent)
     keep &= state.depth > 0
     if options.min_texture > 0:
