@@ -754,6 +754,7 @@ def consistent_views(depth, normal, kinv, A, b, src_depth, dims, M, c, max_repro
             px = x + 0.5
             py = y + 0.5
             n0, n1, n2 = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
+            oriented = n0 != 0.0 or n1 != 0.0 or n2 != 0.0  # a plane to measure across
             for s in range(A.shape[0]):
                 hz = d * (A[s, 2, 0] * px + A[s, 2, 1] * py + A[s, 2, 2]) + b[s, 2]
                 if hz <= 0.0:
@@ -765,12 +766,12 @@ def consistent_views(depth, normal, kinv, A, b, src_depth, dims, M, c, max_repro
                 z = src_depth[s, int(v), int(u)]
                 if not z > 0.0:
                     continue
-                # the source's ray through (u, v) in the reference frame: K_ref^-1 M (u, v, 1)
-                r0, r1, r2 = _ray_of(kinv, M, s, u, v)
-                cos = abs(n0 * r0 + n1 * r1 + n2 * r2) / math.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
-                if n0 == 0.0 and n1 == 0.0 and n2 == 0.0:
-                    cos = 1.0
-                if abs(hz - z) * max(cos, least_cos) > max_depth_error * z:
+                across = 1.0  # the share of the depth difference that lies across the plane
+                if oriented:
+                    r0, r1, r2 = _ray_of(kinv, M, s, u, v)
+                    across = max(abs(n0 * r0 + n1 * r1 + n2 * r2) / math.sqrt(r0 * r0 + r1 * r1 + r2 * r2),
+                                 least_cos)
+                if abs(hz - z) * across > max_depth_error * z:
                     continue
                 if _reprojection_error(src_depth, s, u, v, px, py, M, c) <= max_reprojection:
                     count[y, x] += 1
