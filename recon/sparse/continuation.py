@@ -55,10 +55,13 @@ def continue_model(database: Path, images: Path, cfg, seed: int, start) -> mappi
                            [attempt])
 
 
-def start_model(previous, image_ids: dict[str, int], camera_ids: dict[str, int]):
+def start_model(previous, image_ids: dict[str, int], camera_ids: dict[str, int],
+                camera_shapes: dict[int, tuple[int, int, int]]):
     """``previous`` (a pycolmap Reconstruction) with the current database's ids: ``image_ids`` and
-    ``camera_ids`` give each image name its image id and camera id. None when the previous model
-    holds an image the database lacks, or one camera that the database splits in two."""
+    ``camera_ids`` give each image name its image id and camera id, ``camera_shapes`` each camera id
+    its (COLMAP model id, width, height). None when the previous model holds an image the database
+    lacks, one camera that the database splits in two, or a camera of another model or size (the
+    photos' lens settings changed: the model is mapped again, not continued)."""
     import pycolmap
 
     names = {image.name for image in previous.images.values()}
@@ -67,6 +70,10 @@ def start_model(previous, image_ids: dict[str, int], camera_ids: dict[str, int])
     cameras: dict[int, int] = {}
     for image in previous.images.values():
         if cameras.setdefault(image.camera_id, camera_ids[image.name]) != camera_ids[image.name]:
+            return None
+    for old_id, new_id in cameras.items():
+        old = previous.cameras[old_id]
+        if (int(old.model.value), old.width, old.height) != camera_shapes[new_id]:
             return None
     rec = pycolmap.Reconstruction()
     for old_id, new_id in cameras.items():
@@ -111,8 +118,11 @@ def align_to_previous(rec, previous, seed: int = 0) -> dict | None:
             "rms": float(np.sqrt(np.mean(residual ** 2)))}
 
 
-def database_ids(database: Path) -> tuple[dict[str, int], dict[str, int]]:
-    """Image name -> image id, and image name -> camera id, in a COLMAP database."""
+def database_ids(database: Path) -> tuple[dict[str, int], dict[str, int], dict[int, tuple[int, int, int]]]:
+    """Image name -> image id, image name -> camera id, and camera id -> (COLMAP model id, width,
+    height), in a COLMAP database."""
     with read_only(database) as db:
         rows = db.execute("SELECT name, image_id, camera_id FROM images").fetchall()
-    return {name: image for name, image, _ in rows}, {name: camera for name, _, camera in rows}
+        cameras = db.execute("SELECT camera_id, model, width, height FROM cameras").fetchall()
+    return ({name: image for name, image, _ in rows}, {name: camera for name, _, camera in rows},
+            {camera: (model, width, height) for camera, model, width, height in cameras})

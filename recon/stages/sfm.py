@@ -179,7 +179,9 @@ class Sfm(Stage):
     def previous_model(self, ctx: StageContext, cfg: SfmConfig):
         """The model to continue (a pycolmap Reconstruction) and the key of its output, or (None, None):
         the newest earlier output of this stage with the same options and seed, undamaged, all of whose
-        photos are among this run's with the same features (their item keys, :mod:`recon.items`)."""
+        photos are among this run's with the same features (their item keys, :mod:`recon.items`), from
+        a run that lacked some of this run's photos. Without added photos nothing is continued: what
+        made sfm run again (matches, lens settings) must reach every photo's pose."""
         if not (cfg.continue_from_previous and cfg.mapper == "incremental" and ctx.reuse):
             return None, None
         import pycolmap
@@ -193,6 +195,8 @@ class Sfm(Stage):
                     or ws.verify(self.name, key) is not None:
                 continue
             before = FeatureDatabase(ws.output_dir(features, manifest["upstream"].get(features, ""))).item_keys()
+            if not current.keys() - before.keys():
+                continue
             model = pycolmap.Reconstruction(str(SparseModel(ws.output_dir(self.name, key)).model()))
             if all(image.name in current and before.get(image.name) == current[image.name]
                    for image in model.images.values()):

@@ -65,6 +65,17 @@ def test_a_forced_stage_reuses_nothing(copy_workspace, small_scene):
     assert result.summaries["matching"]["reused_pairs"] == 0 and result.summaries["matching"]["matched_pairs"] == 120
 
 
+def test_a_changed_lens_model_maps_the_same_photos_again(copy_workspace, small_scene):
+    """No photo added, the camera model changed: sfm maps from scratch with the new model (continuing
+    the previous SIMPLE_RADIAL model stopped COLMAP with a model-mismatch check)."""
+    result = recon.run(SPARSE, images=str(small_scene / "images"), workspace=str(copy_workspace),
+                       until="sfm", ingest={"camera_model": "SIMPLE_PINHOLE"})
+    assert "sfm" in result.ran and result.summaries["sfm"]["mapping"] == "from scratch"
+    rec = pycolmap.Reconstruction(str(copy_workspace / "sparse" / "0"))
+    assert {c.model.name for c in rec.cameras.values()} == {"SIMPLE_PINHOLE"}
+    assert rec.num_reg_images() == 16
+
+
 def centres(model: Path) -> dict[str, np.ndarray]:
     rec = pycolmap.Reconstruction(str(model))
     return {image.name: image.projection_center() for image in rec.images.values() if image.has_pose}
