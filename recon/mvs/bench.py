@@ -162,8 +162,9 @@ def _warm_up(options: MVSOptions) -> bool:
     small = dataclasses.replace(options, pyramid_levels=2, iterations=1, upper_iterations=1,
                                 geometric_iterations=1)
     state = patchmatch.photometric_depth(image, [image], ref, [src], (1.0, 2.0), small, 0)
-    state = patchmatch.geometric_depth(image, [image], ref, [src], [state.depth], state, (1.0, 2.0), small, 0)
-    patchmatch.filter_depth(image, [image], ref, [src], [state.depth], state, small)
+    view = patchmatch.checked(image, [image], ref, [src], [state.depth])
+    state = patchmatch.geometric_depth(view, state, (1.0, 2.0), small, 0)
+    patchmatch.filter_depth(view, state, small)
     return True
 
 

@@ -924,15 +924,29 @@ def photometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, 
     return state
 
 
-def geometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
-                    src_depths: list[np.ndarray], initial: State, depth_range: tuple[float, float],
-                    options: MVSOptions, seed: int) -> State:
+@dataclass(frozen=True)
+class Checked:
+    """A view at full resolution with its sources' depth maps: what the geometric pass and filtering
+    both read, built once for the two."""
+
+    level: Level
+    src_depth: np.ndarray  # (S, H, W) stack of the sources' photometric depth maps
+    depth_dims: np.ndarray  # (S, 2) width and height of each
+
+
+def checked(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
+            src_depths: list[np.ndarray]) -> Checked:
+    """The full-resolution level of ``ref`` and its sources, and the sources' depth maps (each the size
+    of its source image)."""
+    return Checked(make_level(ref, srcs, ref_cam, src_cams), *stack_images(src_depths))
+
+
+def geometric_depth(view: Checked, initial: State, depth_range: tuple[float, float], options: MVSOptions,
+                    seed: int) -> State:
     """Geometric-consistency pass: sweeps whose cost adds the reprojection error through the source
-    depth maps (each the size of its source image), starting from the photometric ``initial``.
-    The returned state's costs are the photometric part alone, the matching cost
-    :func:`filter_depth` tests."""
-    level = make_level(ref, srcs, ref_cam, src_cams)
-    src_depth, _ = stack_images(src_depths)
+    depth maps, starting from the photometric ``initial``. The returned state's costs are the
+    photometric part alone, the matching cost :func:`filter_depth` tests."""
+    level, src_depth = view.level, view.src_depth
     state = State(initial.depth.copy(), initial.normal.copy(), np.zeros_like(initial.cost),
                   np.zeros_like(initial.depth, dtype=np.int64))
     evaluate_state(level, state, options, SELECT_VIEWS if options.view_subset else ALL_VIEWS, src_depth)
@@ -951,12 +965,11 @@ def geometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, sr
     return state
 
 
-def photometric_costs(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
-                      state: State, options: MVSOptions) -> State:
+def photometric_costs(view: Checked, state: State, options: MVSOptions) -> State:
     """``state`` with the photometric costs of its hypotheses over its view masks (for
     :func:`filter_depth` when no geometric pass ran)."""
     photometric = State(state.depth, state.normal, np.zeros_like(state.cost), state.views.copy())
-    evaluate_state(make_level(ref, srcs, ref_cam, src_cams), photometric, options, KEEP_VIEWS)
+    evaluate_state(view.level, photometric, options, KEEP_VIEWS)
     return photometric
 
 
@@ -1016,16 +1029,14 @@ def own_texture(ref, window, sigma_spatial, sigma_color, out):
                 out[y, x] = math.sqrt(max(square / total - mean * mean, 0.0))
 
 
-def filter_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
-                 src_depths: list[np.ndarray], state: State, options: MVSOptions) -> State:
+def filter_depth(view: Checked, state: State, options: MVSOptions) -> State:
     """Zero the pixels whose photometric cost (``state.cost``, as :func:`geometric_depth` and
     :func:`photometric_costs` give it) is high, that fewer than ``filter_min_consistent`` source
     depth maps confirm, or whose own side of the window is untextured (:func:`own_texture` below
     ``min_texture``)."""
-    level = make_level(ref, srcs, ref_cam, src_cams)
+    level = view.level
     g = level.geometry
-    src_depth, depth_dims = stack_images(src_depths)
-    count = consistent_views(state.depth, state.normal, g.kinv, g.A, g.b, src_depth, depth_dims, g.M, g.c,
+    count = consistent_views(state.depth, state.normal, g.kinv, g.A, g.b, view.src_depth, view.depth_dims, g.M, g.c,
                              options.filter_max_reprojection, options.filter_max_depth_error,
                              options.filter_grazing_allowance)
     keep = (state.cost <= options.filter_max_cost) & (count >= options.filter_min_consistent)

@@ -119,13 +119,13 @@ def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
             src_cams.append(cam)
         everything = (1 << len(sources)) - 1
         state = patchmatch.State(depth, normal, np.zeros_like(depth), np.full(depth.shape, everything, np.int64))
+        view = patchmatch.checked(ref, srcs, ref_cam, src_cams, src_depths)
         if options.geometric and options.geometric_iterations > 0:
-            state = patchmatch.geometric_depth(ref, srcs, ref_cam, src_cams, src_depths, state,
-                                               (problem.depth_min, problem.depth_max), options,
+            state = patchmatch.geometric_depth(view, state, (problem.depth_min, problem.depth_max), options,
                                                _seed(options, problem.ref))
         else:
-            state = patchmatch.photometric_costs(ref, srcs, ref_cam, src_cams, state, options)
-        state = patchmatch.filter_depth(ref, srcs, ref_cam, src_cams, src_depths, state, options)
+            state = patchmatch.photometric_costs(view, state, options)
+        state = patchmatch.filter_depth(view, state, options)
         depth, normal = state.depth, state.normal
     else:
         depth, normal = np.zeros_like(depth), np.zeros_like(normal)

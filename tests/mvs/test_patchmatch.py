@@ -168,19 +168,24 @@ def test_geometric_term_penalises_disagreeing_depth_maps(plane):
     assert results[1] > results[0] + OPTIONS.geometric_weight  # errors of several pixels, capped at 3
 
 
-def _costed(images, cams, depth, normal, options=OPTIONS):
+def _costed(view, depth, normal, options=OPTIONS):
     """The state of the planes (depth, normal) with their photometric costs, as the filter takes it."""
-    return pm.photometric_costs(images[0], images[1:], cams[0], cams[1:], _state(depth, normal), options)
+    return pm.photometric_costs(view, _state(depth, normal), options)
+
+
+def _checked(images, cams, depth_maps):
+    """The reference (images[0]) with its sources and their depth maps, as geometric_depth and
+    filter_depth take them."""
+    return pm.checked(images[0], images[1:], cams[0], cams[1:], depth_maps)
 
 
 def test_filter_keeps_confirmed_pixels_only(plane):
     images, cams, depths, normal = plane
-    state = _costed(images, cams, depths[0], normal)
-    kept = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], state, OPTIONS)
+    view = _checked(images, cams, depths[1:])
+    kept = pm.filter_depth(view, _costed(view, depths[0], normal), OPTIONS)
     assert (kept.depth[25:-25, 25:-25] > 0).all()
     assert ((kept.depth == 0) == (kept.normal == 0).all(axis=-1)).all()
-    wrong = _costed(images, cams, depths[0] * 1.05, normal)
-    dropped = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], wrong, OPTIONS)
+    dropped = pm.filter_depth(view, _costed(view, depths[0] * 1.05, normal), OPTIONS)
     assert not dropped.depth.any()
 
 
@@ -193,8 +198,7 @@ def test_the_geometric_pass_leaves_the_photometric_costs_the_filter_tests(plane)
     rng = np.random.default_rng(1)
     start = (depths[0] * rng.uniform(0.9, 1.1, depths[0].shape)).astype(np.float32)
     sources = [d * 1.02 for d in depths[1:]]  # reprojection errors of a few pixels, some capped
-    state = pm.geometric_depth(images[0], images[1:], cams[0], cams[1:], sources, _state(start, normal),
-                               (1.0, 4.0), options, seed=0)
+    state = pm.geometric_depth(_checked(images, cams, sources), _state(start, normal), (1.0, 4.0), options, seed=0)
     assert set(np.unique(state.views)) <= {0b011, 0b101, 0b110}
     level = pm.make_level(images[0], images[1:], cams[0], cams[1:])
     photometric = pm.State(state.depth, state.normal, np.zeros_like(state.cost), state.views.copy())
@@ -225,10 +229,10 @@ def test_the_uniform_side_of_an_edge_gets_no_depth():
     consistency tests, as a sky pixel beside a pole does at the pole's depth. Their own side of the
     window is untextured, so the filter drops them and keeps the textured side."""
     images, cams, depths, normal = _plane_scene(uniform_from=0.0)
-    state = _costed(images, cams, depths[0], normal)
+    view = _checked(images, cams, depths[1:])
+    state = _costed(view, depths[0], normal)
     without = dataclasses.replace(OPTIONS, min_texture=0.0)  # neither texture test
-    old = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], state, without)
-    new = pm.filter_depth(images[0], images[1:], cams[0], cams[1:], depths[1:], state, OPTIONS)
+    old, new = pm.filter_depth(view, state, without), pm.filter_depth(view, state, OPTIONS)
     grey = np.abs(images[0] - SKY) < 1e-6
     edge = int(np.argmax(grey[HEIGHT // 2]))  # first grey column on the middle row
     rows = slice(12, -12)
