@@ -71,13 +71,11 @@ def start_model(previous, image_ids: dict[str, int], camera_ids: dict[str, int],
     for image in previous.images.values():
         if cameras.setdefault(image.camera_id, camera_ids[image.name]) != camera_ids[image.name]:
             return None
+    rec = pycolmap.Reconstruction()
     for old_id, new_id in cameras.items():
         old = previous.cameras[old_id]
         if (int(old.model.value), old.width, old.height) != camera_shapes[new_id]:
             return None
-    rec = pycolmap.Reconstruction()
-    for old_id, new_id in cameras.items():
-        old = previous.cameras[old_id]
         camera = pycolmap.Camera(model=old.model, width=old.width, height=old.height, params=old.params,
                                  camera_id=new_id)
         camera.has_prior_focal_length = old.has_prior_focal_length

@@ -198,14 +198,15 @@ def test_the_geometric_pass_leaves_the_photometric_costs_the_filter_tests(plane)
     rng = np.random.default_rng(1)
     start = (depths[0] * rng.uniform(0.9, 1.1, depths[0].shape)).astype(np.float32)
     sources = [d * 1.02 for d in depths[1:]]  # reprojection errors of a few pixels, some capped
-    state = pm.geometric_depth(_checked(images, cams, sources), _state(start, normal), (1.0, 4.0), options, seed=0)
+    view = _checked(images, cams, sources)
+    state = pm.geometric_depth(view, _state(start, normal), (1.0, 4.0), options, seed=0)
     assert set(np.unique(state.views)) <= {0b011, 0b101, 0b110}
-    level = pm.make_level(images[0], images[1:], cams[0], cams[1:])
+    level = view.level
     photometric = pm.State(state.depth, state.normal, np.zeros_like(state.cost), state.views.copy())
     pm.evaluate_state(level, photometric, options, pm.KEEP_VIEWS)
     np.testing.assert_allclose(state.cost, photometric.cost, atol=1e-4)
     combined = pm.State(state.depth, state.normal, np.zeros_like(state.cost), state.views.copy())
-    pm.evaluate_state(level, combined, options, pm.KEEP_VIEWS, pm.stack_images(sources)[0])
+    pm.evaluate_state(level, combined, options, pm.KEEP_VIEWS, view.src_depth)
     assert np.median(combined.cost - photometric.cost) > 0.03  # the term taken out was not nothing
 
 
