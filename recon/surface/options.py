@@ -46,6 +46,11 @@ class TextureOptions:
     colour_calibration: bool = opt(True, "even out the photos' exposure, white balance and vignetting before "
                                          "texturing, estimated from the colours they show of the same faces "
                                          "(recon.surface.texture.photometric)")
+    mix_ratio: float = opt(0.5, "each texel: the quality-weighted mean of its face's chosen photo and the other "
+                                "photos seeing it unobstructed at least this fraction as well (view quality: "
+                                "projected area x sharpness); 0: the chosen photo alone; not with levelling, whose "
+                                "corrections fit the chosen photos. Zoo: held-out PSNR up on 12 of 15 scenes "
+                                "(docs/DECISIONS.md)", ge=0.0, lt=1.0)
     levelling: bool = opt(False, "global colour adjustment between patches (Lempitsky and Ivanov 2007); off by "
                                  "default: on the scene zoo it lowered held-out PSNR on 12 of 15 scenes (mean -0.66 dB; "
                                  "seams fall on creases, where the two photos' colours differ for reasons other than "

@@ -57,7 +57,7 @@ def test_calibration_evens_out_seam_jumps_as_levelling_did(small_scene, mesh):
 def test_texture_reproduces_the_photos(small_scene, mesh):
     """Rendered into one of its own views, the texture gives back that photo where it was used."""
     textured = texture_mesh(mesh, small_scene.images, small_scene.cameras,
-                            TextureOptions(levelling=False, seam_blending=False))
+                            TextureOptions(levelling=False, seam_blending=False, mix_ratio=0.0))
     k = 3
     cam, photo = small_scene.cameras[k], small_scene.images[k]
     image, mask = render(textured, cam, photo.shape[1], photo.shape[0])
@@ -88,3 +88,17 @@ def test_unseen_faces_are_filled_from_their_neighbours(small_scene, mesh):
         tex = sample_bilinear(textured.texture.astype(np.float32), uv[:, 0] * w, (1 - uv[:, 1]) * h)
         expected = np.einsum("k,nkc->nc", bary, textured.vertex_colors[textured.faces[unseen]].astype(float))
         assert np.abs(tex - expected).mean() < 1.0
+
+
+def test_mixing_views_averages_out_sensor_noise(small_scene, mesh):
+    """Photos with independent sensor noise: each texel averaged over the views that see its face nearly
+    as well as the chosen one is less noisy in held-out views than the chosen photo alone."""
+    rng = np.random.default_rng(3)
+    noisy = [np.clip(im + rng.normal(0, 12, im.shape), 0, 255).astype(np.uint8) for im in small_scene.images]
+
+    def psnr(ratio):
+        return _holdout_psnr(small_scene, texture_mesh(mesh, noisy, small_scene.cameras,
+                                                       TextureOptions(mix_ratio=ratio)))
+
+    alone, mixed = psnr(0.0), psnr(0.5)
+    assert mixed > alone + 1.0

@@ -4,7 +4,8 @@ Steps: per-face view quality with occlusion tests (:mod:`.views`), the photos' e
 and vignetting evened out (:mod:`.photometric`), views inconsistent with the others dropped per face
 (:mod:`.consistency`), one view per face by graph cuts
 (:mod:`.selection`), global seam levelling if asked for (:mod:`.levelling`), an atlas of the patches' projections
-(:mod:`.atlas`), baking (:mod:`.bake`), local blending along seams (:mod:`.blending`).
+(:mod:`.atlas`), baking (:mod:`.bake`: each texel the chosen photo's colour averaged with the other photos that see
+it nearly as well), local blending along seams (:mod:`.blending`).
 """
 
 from __future__ import annotations
@@ -84,7 +85,10 @@ def texture_mesh(mesh: trimesh.Trimesh, images: Sequence[np.ndarray], cameras: S
     vcolor = vertex_colors(vertices, faces, labels, corner_corr, photos, cameras)
     lay = layout(vertices, faces, labels, patch, cameras, options.max_texture_size, options.texel_scale,
                  options.padding)
-    atlas = bake(lay, faces, labels, corner_corr, vcolor, photos, depths)
+    # levelling's corrections are fitted to the chosen photos' colours along the seams, not to mixtures
+    mixing = (vertices, quality, cameras, options.mix_ratio) if options.mix_ratio > 0 and not options.levelling \
+        else None
+    atlas = bake(lay, faces, labels, corner_corr, vcolor, photos, depths, mixing)
     lap("bake")
     if options.seam_blending:
         atlas = blend_seams(atlas, lay, vertices, faces, labels, patch, pairs, edge_vertices, cameras, depths,

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import cv2
 import numpy as np
@@ -14,6 +14,7 @@ from scipy.sparse.linalg import spsolve
 from recon.geometry.transforms import project
 from recon.surface.texture.atlas import FILL_BLOCK, Layout
 from recon.surface.texture.raster import rasterize, sample_bilinear
+from recon.surface.texture.views import unobstructed
 
 log = logging.getLogger(__name__)
 
@@ -59,12 +60,39 @@ def _chart_pixels(image: np.ndarray, chart, scale: float, gutter: int, nearest: 
                           borderMode=cv2.BORDER_REPLICATE)
 
 
+def _mix_views(atlas: np.ndarray, face_map: np.ndarray, bary: np.ndarray, vertices: np.ndarray,
+               faces: np.ndarray, labels: np.ndarray, quality: np.ndarray, min_ratio: float,
+               photo: Callable[[int], np.ndarray], cameras: Sequence, depths: Sequence[np.ndarray]) -> None:
+    """Each texel on a face becomes the quality-weighted mean of its chosen photo and the other photos
+    that see its point unobstructed with at least ``min_ratio`` of the chosen view's quality (in place)."""
+    covered = np.flatnonzero(face_map.ravel() >= 0)
+    face = face_map.ravel()[covered]
+    chosen = np.maximum(quality[face, labels[face]].astype(np.float64), 1e-12)
+    points = np.einsum("nk,nkc->nc", bary.reshape(-1, 3)[covered], vertices[faces[face]])
+    flat = atlas.reshape(-1, 3)
+    total = flat[covered] * chosen[:, None]
+    weight = chosen.copy()
+    for j in range(quality.shape[1]):
+        q = quality[face, j]
+        at = np.flatnonzero((q >= min_ratio * chosen) & (q > 0) & (labels[face] != j))
+        if len(at) == 0:
+            continue
+        cam = cameras[j]
+        at = at[unobstructed(points[at], cam, depths[j])]
+        uv, _ = project(cam.K, cam.R, cam.t, points[at])
+        total[at] += sample_bilinear(photo(j), uv[:, 0], uv[:, 1]) * q[at, None]
+        weight[at] += q[at]
+    flat[covered] = total / np.maximum(weight, 1e-30)[:, None]
+
+
 def bake(lay: Layout, faces: np.ndarray, labels: np.ndarray, corner_corr: np.ndarray,
-         vertex_color: np.ndarray, images: Sequence[np.ndarray], depths: Sequence[np.ndarray]) -> np.ndarray:
+         vertex_color: np.ndarray, images: Sequence[np.ndarray], depths: Sequence[np.ndarray],
+         mixing: tuple[np.ndarray, np.ndarray, Sequence, float] | None = None) -> np.ndarray:
     """The atlas (H, W, 3; float 0-255); ``depths`` are the mesh's depth maps in the views.
 
     Texels whose centre lies on a face get the photo's colour plus the barycentric interpolation of the
-    face's corner corrections. The other texels of a chart (its gutter) keep the photo where it shows the
+    face's corner corrections; with ``mixing`` (vertices, the views' quality per face, cameras, ratio),
+    the photo's colour is first averaged with the other views' (:func:`_mix_views`). The other texels of a chart (its gutter) keep the photo where it shows the
     surface continuing (depth close to that of the nearest covered texel), so a lookup on a seam sees the
     photo's colour there; where the photo shows something else beyond the patch (an occluder, the
     background: patches often end where their photo stops seeing the surface) they copy the nearest
@@ -72,17 +100,24 @@ def bake(lay: Layout, faces: np.ndarray, labels: np.ndarray, corner_corr: np.nda
     atlas = np.zeros((lay.height, lay.width, 3), np.float32)
     depth = np.full((lay.height, lay.width), np.inf, np.float32)
     sources = {}
-    for chart in lay.charts:
-        if chart.view not in sources:
-            img = np.asarray(images[chart.view], np.float32)
+
+    def photo(j: int) -> np.ndarray:
+        if j not in sources:
+            img = np.asarray(images[j], np.float32)
             if lay.scale < 1:  # anti-alias before shrinking
                 img = cv2.GaussianBlur(img, (0, 0), 0.5 * np.sqrt(1 / lay.scale**2 - 1) + 1e-3)
-            sources[chart.view] = img
+            sources[j] = img
+        return sources[j]
+
+    for chart in lay.charts:
         rect = np.s_[chart.y:chart.y + chart.h, chart.x:chart.x + chart.w]
-        atlas[rect] = _chart_pixels(sources[chart.view], chart, lay.scale, lay.gutter)
+        atlas[rect] = _chart_pixels(photo(chart.view), chart, lay.scale, lay.gutter)
         depth[rect] = _chart_pixels(np.asarray(depths[chart.view], np.float32), chart, lay.scale, lay.gutter, True)
     seen = np.flatnonzero(labels >= 0)
     face_map, bary = rasterize(lay.corner_xy[seen], seen, lay.height, lay.width)
+    if mixing is not None:
+        vertices, quality, cameras, ratio = mixing
+        _mix_views(atlas, face_map, bary, vertices, faces, labels, quality, ratio, photo, cameras, depths)
     covered = face_map >= 0
     corr = np.zeros_like(atlas)
     corr[covered] = np.einsum("nk,nkc->nc", bary[covered], corner_corr[face_map[covered]])
