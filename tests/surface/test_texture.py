@@ -57,7 +57,7 @@ def test_calibration_evens_out_seam_jumps_as_levelling_did(small_scene, mesh):
 def test_texture_reproduces_the_photos(small_scene, mesh):
     """Rendered into one of its own views, the texture gives back that photo where it was used."""
     textured = texture_mesh(mesh, small_scene.images, small_scene.cameras,
-                            TextureOptions(levelling=False, seam_blending=False, mix_ratio=0.0))
+                            TextureOptions(levelling=False, seam_blending=False, mix_ratio=0.0, texel_scale=1.0))
     k = 3
     cam, photo = small_scene.cameras[k], small_scene.images[k]
     image, mask = render(textured, cam, photo.shape[1], photo.shape[0])
