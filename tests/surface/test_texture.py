@@ -1,3 +1,5 @@
+import importlib
+
 import numpy as np
 import pytest
 from surface_scene import with_gains
@@ -102,3 +104,11 @@ def test_mixing_views_averages_out_sensor_noise(small_scene, mesh):
 
     alone, mixed = psnr(0.0), psnr(0.5)
     assert mixed > alone + 1.0
+
+
+def test_mixing_in_blocks_gives_the_same_atlas(small_scene, mesh, monkeypatch):
+    bake = importlib.import_module("recon.surface.texture.bake")  # the package exports the function of that name
+    whole = texture_mesh(mesh, small_scene.images, small_scene.cameras, TextureOptions(seam_blending=False))
+    monkeypatch.setattr(bake, "_MIX_BLOCK", 997)
+    blocks = texture_mesh(mesh, small_scene.images, small_scene.cameras, TextureOptions(seam_blending=False))
+    assert np.array_equal(whole.texture, blocks.texture)

@@ -19,6 +19,7 @@ from recon.surface.texture.views import unobstructed
 log = logging.getLogger(__name__)
 
 _DEPTH_STEP = 0.01  # relative depth change per texel still taken for the same surface continuing
+_MIX_BLOCK = 1 << 22  # texels mixed at once (about 0.5 GB of working arrays)
 
 
 def vertex_colors(vertices: np.ndarray, faces: np.ndarray, labels: np.ndarray, corner_corr: np.ndarray,
@@ -64,25 +65,28 @@ def _mix_views(atlas: np.ndarray, face_map: np.ndarray, bary: np.ndarray, vertic
                faces: np.ndarray, labels: np.ndarray, quality: np.ndarray, min_ratio: float,
                photo: Callable[[int], np.ndarray], cameras: Sequence, depths: Sequence[np.ndarray]) -> None:
     """Each texel on a face becomes the quality-weighted mean of its chosen photo and the other photos
-    that see its point unobstructed with at least ``min_ratio`` of the chosen view's quality (in place)."""
-    covered = np.flatnonzero(face_map.ravel() >= 0)
-    face = face_map.ravel()[covered]
-    chosen = np.maximum(quality[face, labels[face]].astype(np.float64), 1e-12)
-    points = np.einsum("nk,nkc->nc", bary.reshape(-1, 3)[covered], vertices[faces[face]])
+    that see its point unobstructed with at least ``min_ratio`` of the chosen view's quality (in place).
+    Texels are taken in blocks of :data:`_MIX_BLOCK`, so that memory stays bounded on a full atlas."""
     flat = atlas.reshape(-1, 3)
-    total = flat[covered] * chosen[:, None]
-    weight = chosen.copy()
-    for j in range(quality.shape[1]):
-        q = quality[face, j]
-        at = np.flatnonzero((q >= min_ratio * chosen) & (q > 0) & (labels[face] != j))
-        if len(at) == 0:
-            continue
-        cam = cameras[j]
-        at = at[unobstructed(points[at], cam, depths[j])]
-        uv, _ = project(cam.K, cam.R, cam.t, points[at])
-        total[at] += sample_bilinear(photo(j), uv[:, 0], uv[:, 1]) * q[at, None]
-        weight[at] += q[at]
-    flat[covered] = total / np.maximum(weight, 1e-30)[:, None]
+    all_covered = np.flatnonzero(face_map.ravel() >= 0)
+    for first in range(0, len(all_covered), _MIX_BLOCK):
+        covered = all_covered[first:first + _MIX_BLOCK]
+        face = face_map.ravel()[covered]
+        chosen = np.maximum(quality[face, labels[face]].astype(np.float64), 1e-12)
+        points = np.einsum("nk,nkc->nc", bary.reshape(-1, 3)[covered], vertices[faces[face]])
+        total = flat[covered] * chosen[:, None]
+        weight = chosen.copy()
+        for j in range(quality.shape[1]):
+            q = quality[face, j]
+            at = np.flatnonzero((q >= min_ratio * chosen) & (q > 0) & (labels[face] != j))
+            if len(at) == 0:
+                continue
+            cam = cameras[j]
+            at = at[unobstructed(points[at], cam, depths[j])]
+            uv, _ = project(cam.K, cam.R, cam.t, points[at])
+            total[at] += sample_bilinear(photo(j), uv[:, 0], uv[:, 1]) * q[at, None]
+            weight[at] += q[at]
+        flat[covered] = total / weight[:, None]
 
 
 def bake(lay: Layout, faces: np.ndarray, labels: np.ndarray, corner_corr: np.ndarray,
@@ -92,11 +96,12 @@ def bake(lay: Layout, faces: np.ndarray, labels: np.ndarray, corner_corr: np.nda
 
     Texels whose centre lies on a face get the photo's colour plus the barycentric interpolation of the
     face's corner corrections; with ``mixing`` (vertices, the views' quality per face, cameras, ratio),
-    the photo's colour is first averaged with the other views' (:func:`_mix_views`). The other texels of a chart (its gutter) keep the photo where it shows the
-    surface continuing (depth close to that of the nearest covered texel), so a lookup on a seam sees the
-    photo's colour there; where the photo shows something else beyond the patch (an occluder, the
-    background: patches often end where their photo stops seeing the surface) they copy the nearest
-    covered texel. Either way they take the nearest covered texel's correction."""
+    the photo's colour is first averaged with the other views' (:func:`_mix_views`). The other texels of
+    a chart (its gutter) keep the photo where it shows the surface continuing (depth close to that of the
+    nearest covered texel), so a lookup on a seam sees the photo's colour there; where the photo shows
+    something else beyond the patch (an occluder, the background: patches often end where their photo
+    stops seeing the surface) they copy the nearest covered texel. Either way they take the nearest
+    covered texel's correction."""
     atlas = np.zeros((lay.height, lay.width, 3), np.float32)
     depth = np.full((lay.height, lay.width), np.inf, np.float32)
     sources = {}
