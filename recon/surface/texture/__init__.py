@@ -21,7 +21,7 @@ from recon.imaging.masks import mask_at
 from recon.surface.options import TextureOptions
 from recon.surface.raycast import render_ids, scene_of
 from recon.surface.texture.atlas import layout
-from recon.surface.texture.bake import bake, vertex_colors
+from recon.surface.texture.bake import Mixing, bake, vertex_colors
 from recon.surface.texture.blending import blend_seams
 from recon.surface.texture.consistency import drop_inconsistent_views
 from recon.surface.texture.levelling import level_seams
@@ -86,8 +86,8 @@ def texture_mesh(mesh: trimesh.Trimesh, images: Sequence[np.ndarray], cameras: S
     lay = layout(vertices, faces, labels, patch, cameras, options.max_texture_size, options.texel_scale,
                  options.padding)
     # levelling's corrections are fitted to the chosen photos' colours along the seams, not to mixtures
-    mixing = (vertices, quality, cameras, options.mix_ratio) if options.mix_ratio > 0 and not options.levelling \
-        else None
+    mixing = Mixing(vertices, quality, cameras, options.mix_ratio) \
+        if options.mix_ratio > 0 and not options.levelling else None
     atlas = bake(lay, faces, labels, corner_corr, vcolor, photos, depths, mixing)
     lap("bake")
     if options.seam_blending:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -61,12 +62,25 @@ def _chart_pixels(image: np.ndarray, chart, scale: float, gutter: int, nearest: 
                           borderMode=cv2.BORDER_REPLICATE)
 
 
-def _mix_views(atlas: np.ndarray, face_map: np.ndarray, bary: np.ndarray, vertices: np.ndarray,
-               faces: np.ndarray, labels: np.ndarray, quality: np.ndarray, min_ratio: float,
-               photo: Callable[[int], np.ndarray], cameras: Sequence, depths: Sequence[np.ndarray]) -> None:
+@dataclass(frozen=True)
+class Mixing:
+    """What :func:`bake` needs to average each texel over the photos that see its face nearly as well as
+    the chosen one: the mesh's vertices, each view's quality at each face (F, views), the views' cameras,
+    and the least share of the chosen view's quality a view must have to be mixed in."""
+
+    vertices: np.ndarray
+    quality: np.ndarray
+    cameras: Sequence
+    min_ratio: float
+
+
+def _mix_views(atlas: np.ndarray, face_map: np.ndarray, bary: np.ndarray, faces: np.ndarray, labels: np.ndarray,
+               mixing: Mixing, photo: Callable[[int], np.ndarray], depths: Sequence[np.ndarray]) -> None:
     """Each texel on a face becomes the quality-weighted mean of its chosen photo and the other photos
-    that see its point unobstructed with at least ``min_ratio`` of the chosen view's quality (in place).
-    Texels are taken in blocks of :data:`_MIX_BLOCK`, so that memory stays bounded on a full atlas."""
+    that see its point unobstructed with at least ``mixing.min_ratio`` of the chosen view's quality (in
+    place). Texels are taken in blocks of :data:`_MIX_BLOCK`, so that memory stays bounded on a full
+    atlas."""
+    vertices, quality, cameras, min_ratio = mixing.vertices, mixing.quality, mixing.cameras, mixing.min_ratio
     flat = atlas.reshape(-1, 3)
     all_covered = np.flatnonzero(face_map.ravel() >= 0)
     for first in range(0, len(all_covered), _MIX_BLOCK):
@@ -91,17 +105,16 @@ def _mix_views(atlas: np.ndarray, face_map: np.ndarray, bary: np.ndarray, vertic
 
 def bake(lay: Layout, faces: np.ndarray, labels: np.ndarray, corner_corr: np.ndarray,
          vertex_color: np.ndarray, images: Sequence[np.ndarray], depths: Sequence[np.ndarray],
-         mixing: tuple[np.ndarray, np.ndarray, Sequence, float] | None = None) -> np.ndarray:
+         mixing: Mixing | None = None) -> np.ndarray:
     """The atlas (H, W, 3; float 0-255); ``depths`` are the mesh's depth maps in the views.
 
     Texels whose centre lies on a face get the photo's colour plus the barycentric interpolation of the
-    face's corner corrections; with ``mixing`` (vertices, the views' quality per face, cameras, ratio),
-    the photo's colour is first averaged with the other views' (:func:`_mix_views`). The other texels of
-    a chart (its gutter) keep the photo where it shows the surface continuing (depth close to that of the
-    nearest covered texel), so a lookup on a seam sees the photo's colour there; where the photo shows
-    something else beyond the patch (an occluder, the background: patches often end where their photo
-    stops seeing the surface) they copy the nearest covered texel. Either way they take the nearest
-    covered texel's correction."""
+    face's corner corrections; with ``mixing``, the photo's colour is first averaged with the other
+    views' (:func:`_mix_views`). The other texels of a chart (its gutter) keep the photo where it shows
+    the surface continuing (depth close to that of the nearest covered texel), so a lookup on a seam sees
+    the photo's colour there; where the photo shows something else beyond the patch (an occluder, the
+    background: patches often end where their photo stops seeing the surface) they copy the nearest
+    covered texel. Either way they take the nearest covered texel's correction."""
     atlas = np.zeros((lay.height, lay.width, 3), np.float32)
     depth = np.full((lay.height, lay.width), np.inf, np.float32)
     sources = {}
@@ -121,8 +134,7 @@ def bake(lay: Layout, faces: np.ndarray, labels: np.ndarray, corner_corr: np.nda
     seen = np.flatnonzero(labels >= 0)
     face_map, bary = rasterize(lay.corner_xy[seen], seen, lay.height, lay.width)
     if mixing is not None:
-        vertices, quality, cameras, ratio = mixing
-        _mix_views(atlas, face_map, bary, vertices, faces, labels, quality, ratio, photo, cameras, depths)
+        _mix_views(atlas, face_map, bary, faces, labels, mixing, photo, depths)
     covered = face_map >= 0
     corr = np.zeros_like(atlas)
     corr[covered] = np.einsum("nk,nkc->nc", bary[covered], corner_corr[face_map[covered]])
