@@ -55,6 +55,45 @@ def test_sources_are_the_neighbours_on_the_path(reconstruction):
         assert set(problems[names[i]].sources) == {names[i - 1], names[i + 1]}
 
 
+def _untrack(rec: pycolmap.Reconstruction, image_id: int, point_ids) -> None:
+    """Take ``image_id`` out of these points' tracks (as if its features had not been matched)."""
+    for pid in point_ids:
+        track = pycolmap.Track()
+        for element in rec.points3D[pid].track.elements:
+            if element.image_id != image_id:
+                track.add_element(element.image_id, element.point2D_idx)
+            else:
+                rec.images[image_id].reset_point3D_for_point2D(element.point2D_idx)
+        rec.points3D[pid].track = track
+
+
+def test_a_view_seeing_points_it_does_not_track_is_a_source_unless_its_own_points_hide_them(reconstruction):
+    # a thin sparse model: view_003 tracks only 5 of view_002's points, yet its frame holds all of them
+    rec = pycolmap.Reconstruction(reconstruction)
+    ids = {im.name: image_id for image_id, im in rec.images.items()}
+    ref, other = ids["view_002.jpg"], ids["view_003.jpg"]
+
+    def tracked_by(image_id):
+        return {pid for pid, p in rec.points3D.items() if image_id in {e.image_id for e in p.track.elements}}
+
+    shared = sorted(tracked_by(ref) & tracked_by(other))
+    assert len(shared) > 20
+    hidden = {pid: next(e.point2D_idx for e in rec.points3D[pid].track.elements if e.image_id == other)
+              for pid in shared[5:]}
+    _untrack(rec, other, hidden)
+    assert "view_003.jpg" in {p.ref: p for p in select_problems(rec)}["view_002.jpg"].sources
+
+    # now view_003 has triangulated something at half their depth, where they lie in its image
+    image = rec.images[other]
+    cam = view_camera(image, rec.camera(image.camera_id))
+    centre = -cam.R.T @ cam.t
+    for pid, point2D_idx in hidden.items():
+        track = pycolmap.Track()
+        track.add_element(other, point2D_idx)
+        rec.add_point3D(centre + 0.5 * (rec.points3D[pid].xyz - centre), track)
+    assert "view_003.jpg" not in {p.ref: p for p in select_problems(rec)}["view_002.jpg"].sources
+
+
 def test_a_large_minimum_angle_drops_the_nearest_neighbours(reconstruction):
     problems = {p.ref: p for p in select_problems(reconstruction, MVSOptions(min_triangulation_angle=25.0))}
     assert {"view_001.jpg", "view_003.jpg"}.isdisjoint(problems["view_002.jpg"].sources)
