@@ -4,7 +4,7 @@ import pytest
 from recon.eval.surface import surface_metrics
 from recon.surface.cleanup import clean_mesh
 from recon.surface.options import MeshOptions
-from recon.surface.poisson import poisson_mesh
+from recon.surface.poisson import ROBUST_SHARE, octree_depth, poisson_mesh
 from recon.surface.tsdf import tsdf_mesh
 
 
@@ -50,6 +50,16 @@ def test_points_sparser_than_the_poisson_cells_leave_no_pinholes():
     mesh = poisson_mesh(pts, pts, options=MeshOptions(depth=9, density_quantile=0))
     assert mesh.area == pytest.approx(4 * np.pi, rel=0.03)
     assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - 1).max() < 0.02
+
+
+@pytest.mark.parametrize("spread", [2.2, 3.0, 4.9, 6.4, 7.9])
+def test_stray_points_never_make_the_cells_coarser_than_the_depth_over_the_robust_extent(spread):
+    # a cloud in the unit cube and three stray points out to `spread` along x: the octree spans them all
+    points = np.vstack([np.random.default_rng(0).random((20_000, 3)), [[spread, 0.5, 0.5]] * 3])
+    depth = octree_depth(points, 9)
+    lo, hi = np.quantile(points, [ROBUST_SHARE, 1 - ROBUST_SHARE], axis=0)
+    assert (points.max(0) - points.min(0)).max() / 2**depth <= (hi - lo).max() / 2**9
+    assert depth <= 9 + 3
 
 
 def test_a_few_stray_points_far_out_do_not_coarsen_the_poisson_mesh(small_scene):
