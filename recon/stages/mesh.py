@@ -48,7 +48,7 @@ def _in_free_space(ctx: StageContext, mesh) -> np.ndarray:
 @register
 class Mesh(Stage):
     name = "mesh"
-    version = 5
+    version = 6
     Config = MeshConfig
     requires = (DenseScene, DepthMaps, FusedCloud)
     produces = SurfaceMesh

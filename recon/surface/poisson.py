@@ -45,25 +45,42 @@ ROBUST_SHARE = 0.001
 MAX_EXTRA_LEVELS = 3
 
 
+def robust_extent(points: np.ndarray) -> float:
+    """The largest side of the points' box without their farthest :data:`ROBUST_SHARE` at each end of
+    each axis."""
+    lo, hi = np.quantile(points, [ROBUST_SHARE, 1.0 - ROBUST_SHARE], axis=0)
+    return float((hi - lo).max())
+
+
+def trim_cell(points: np.ndarray, depth: int, octree: int) -> float:
+    """The cell the distance trim counts in: the octree's (the points' extent / 2^``octree``), or,
+    where stray points added levels (``octree`` > ``depth``), the robust extent / 2^``depth``: the
+    cell the options ask for. The added levels are rounded; the trim should not jump with them.
+    Trimming in the octree's cells, aerial_grid's cloud with two-view depth maps (4.94 times the
+    robust extent, 2.30 doublings, two levels) kept Poisson's bridges over its holes 1.23 times as
+    far out as asked: mesh F@0.2 % .660, against .686 in the asked cells (its default cloud, 2.67
+    doublings and three levels: .676 against .696)."""
+    if octree > depth:
+        return robust_extent(points) / 2**depth
+    return float((points.max(0) - points.min(0)).max()) / 2**octree
+
+
 def octree_depth(points: np.ndarray, depth: int) -> int:
     """The octree depth that gives cells of ``extent / 2^depth``, where the extent is that of the points
     without their farthest 0.1 % per axis. Poisson's octree spans every point: a few stray points far
     out (a nadir survey's fused cloud: 919 of 549,615 points, every one off the true surface, spread it
     4.5 times wider than the rest) would otherwise make every cell coarser by that factor (aerial_grid's
     mesh: 19,832 faces of 250,000 allowed). Where the full extent is at least twice that extent, as many
-    levels more as it has doublings, rounded up, at most three; the octree is adaptive, so the empty
-    space costs little. Rounded up, the cells are never coarser than ``depth`` makes them over the robust
-    extent: rounded to the nearest, a cloud whose extents' ratio crossed 2^2.5 (aerial_grid with a few more
-    far points: 4.98 against 6.37) took cells twice as coarse, and with them a distance trim twice as
-    wide, which left Poisson's bridges over its holes (mesh accuracy 97.7 -> 72.9 %). Not below twice:
-    far_field's far ground, sparse but true, spreads its points 1.57 times wider than the robust extent,
-    and a level more there cut its sparse far ground to holes (mesh F@0.2 % 0.778 -> 0.686)."""
-    lo, hi = np.quantile(points, [ROBUST_SHARE, 1.0 - ROBUST_SHARE], axis=0)
-    robust = float((hi - lo).max())
+    levels more as it has doublings, rounded, at most three; the octree is adaptive, so the empty space
+    costs little. Not below twice: far_field's far ground, sparse but true, spreads its points 1.57 times
+    wider than the robust extent, and a level more there cut its sparse far ground to holes (mesh F@0.2 %
+    0.778 -> 0.686). Rounded up instead, cells are never coarser than asked, but up to twice finer:
+    walkaround with two-view depth maps (1.13 doublings) lost mesh F .703 -> .652 to holes."""
+    robust = robust_extent(points)
     full = float((points.max(0) - points.min(0)).max())
     if robust <= 0 or full < 2 * robust:
         return depth
-    return depth + min(int(np.ceil(np.log2(full / robust))), MAX_EXTRA_LEVELS)
+    return depth + min(int(np.round(np.log2(full / robust))), MAX_EXTRA_LEVELS)
 
 
 def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | None = None,
@@ -94,7 +111,7 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | N
     keep_face = keep_vertex[faces].all(axis=1)
     tree = cKDTree(points)
     if options.trim_distance > 0:
-        cell = (hi - lo).max() / 2**depth
+        cell = trim_cell(points, options.depth, depth)
         centroids = vertices[faces].mean(axis=1)
         dist, _ = tree.query(centroids, distance_upper_bound=max(options.trim_distance * cell, point_gap(tree)),
                              workers=-1)

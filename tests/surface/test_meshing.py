@@ -4,7 +4,7 @@ import pytest
 from recon.eval.surface import surface_metrics
 from recon.surface.cleanup import clean_mesh
 from recon.surface.options import MeshOptions
-from recon.surface.poisson import ROBUST_SHARE, octree_depth, poisson_mesh
+from recon.surface.poisson import octree_depth, poisson_mesh, trim_cell
 from recon.surface.tsdf import tsdf_mesh
 
 
@@ -52,14 +52,17 @@ def test_points_sparser_than_the_poisson_cells_leave_no_pinholes():
     assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - 1).max() < 0.02
 
 
-@pytest.mark.parametrize("spread", [2.2, 3.0, 4.9, 6.4, 7.9])
-def test_stray_points_never_make_the_cells_coarser_than_the_depth_over_the_robust_extent(spread):
-    # a cloud in the unit cube and three stray points out to `spread` along x: the octree spans them all
-    points = np.vstack([np.random.default_rng(0).random((20_000, 3)), [[spread, 0.5, 0.5]] * 3])
-    depth = octree_depth(points, 9)
-    lo, hi = np.quantile(points, [ROBUST_SHARE, 1 - ROBUST_SHARE], axis=0)
-    assert (points.max(0) - points.min(0)).max() / 2**depth <= (hi - lo).max() / 2**9
-    assert depth <= 9 + 3
+@pytest.mark.parametrize("spread", [2 ** 1.5, 2 ** 2.5])  # where the octree levels the strays add round up
+def test_the_distance_trim_does_not_jump_where_the_stray_levels_round(spread):
+    # a cloud in the unit cube and three stray points along x, just short of and just past `spread`
+    def cloud(x):
+        return np.vstack([np.random.default_rng(0).random((20_000, 3)), [[x, 0.5, 0.5]] * 3])
+
+    short, past = cloud(0.97 * spread), cloud(1.03 * spread)
+    levels = octree_depth(short, 9), octree_depth(past, 9)
+    assert levels[1] == levels[0] + 1  # the octree's cells halve...
+    cells = trim_cell(short, 9, levels[0]), trim_cell(past, 9, levels[1])
+    assert cells[1] == pytest.approx(cells[0], rel=0.01)  # ...the trim's do not
 
 
 def test_a_few_stray_points_far_out_do_not_coarsen_the_poisson_mesh(small_scene):
