@@ -104,11 +104,18 @@ def scaled_to(view: ViewCamera, width: int, height: int) -> ViewCamera:
     return replace(view, K=np.diag([sx, sy, 1.0]) @ view.K, width=width, height=height)
 
 
-def depths_in_view(cam: ViewCamera, xyz: np.ndarray) -> np.ndarray:
-    """Depths of the points ``xyz`` (N, 3) in front of ``cam`` that project inside its image."""
+def _in_frame(cam: ViewCamera, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels (N, 2) and depths (N,) of the points ``xyz`` (N, 3) in ``cam``, and whether each lies in
+    front of it and projects inside its image."""
     uv, z = project(cam.K, cam.R, cam.t, xyz)
     with np.errstate(invalid="ignore"):
         inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+    return uv, z, inside
+
+
+def depths_in_view(cam: ViewCamera, xyz: np.ndarray) -> np.ndarray:
+    """Depths of the points ``xyz`` (N, 3) in front of ``cam`` that project inside its image."""
+    _, z, inside = _in_frame(cam, xyz)
     return z[inside]
 
 
@@ -211,9 +218,7 @@ class _Occluders:
 
     def sees(self, points: np.ndarray) -> np.ndarray:
         """Whether each point lies in the view's frame, in front, and hidden by none of its own points."""
-        uv, z = project(self.cam.K, self.cam.R, self.cam.t, points)
-        out = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < self.cam.width) & (uv[:, 1] >= 0) \
-            & (uv[:, 1] < self.cam.height)
+        uv, z, out = _in_frame(self.cam, points)
         if self.tree is None or not out.any():
             return out
         k = min(_OCCLUDER_NEIGHBOURS, len(self.depth))
