@@ -125,7 +125,8 @@ class Mvs(Stage):
                     plan.stores[kind].link(plan.geometric[name].key, dest)
         todo = [p for p in plan.problems if p.ref not in plan.reused]
         needed = {p.ref for p in todo} | {s for p in todo for s in p.sources if s in plan.photometric}
-        kept = {name for name in needed if _link_photometric(plan, stereo, name, own=name in {p.ref for p in todo})}
+        kept = {name for name in needed if _link_photometric(plan, stereo, name, own=name in {p.ref for p in todo})} \
+            if ctx.reuse else set()  # (forced: every map computed again)
         for name in plan.earlier - kept:  # its earlier photometric maps went missing: computed with its new sources
             plan.photometric[name] = plan.fresh[name]
         plan.geometric = reuse.geometric_items(plan.problems, plan.photometric, plan.inputs)
