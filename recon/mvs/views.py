@@ -30,8 +30,9 @@ PatchMatch samples depths uniformly in inverse depth, and [1/far, 1/near] grew b
 (a percentile: one stray near point would spread the samples). A point only two photos matched does
 not count: the zoo's aerial_grid held 30-40 such points in each view's frame at 11 to 17 times the
 ground's depth, and facade_walk some at 16 to 25 times its facade's. In ranges that deep the depth maps
-agreed on points far below aerial_grid's ground (to 120 m under a 10 m scene; to 11 m once they count
-no longer), and its mesh F@0.2 % rose .703 -> .747 without them (docs/DECISIONS.md).
+agreed on points far below aerial_grid's ground (to 120 units under a scene 116 across; 95 % of them
+within 11 once these points no longer count), and its mesh F@0.2 % rose .703 -> .747 without them
+(docs/DECISIONS.md).
 
 ``keep`` gives views their sources of an earlier run (photos added to a workspace): a view keeps
 them while every one of them still qualifies as a source and its ``reselect_top`` best-scoring
