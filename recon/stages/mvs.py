@@ -124,9 +124,11 @@ class Mvs(Stage):
                 if not dest.exists():
                     plan.stores[kind].link(plan.geometric[name].key, dest)
         todo = [p for p in plan.problems if p.ref not in plan.reused]
-        needed = {p.ref for p in todo} | {s for p in todo for s in p.sources if s in plan.photometric}
-        kept = {name for name in needed if _link_photometric(plan, stereo, name, own=name in {p.ref for p in todo})} \
-            if ctx.reuse else set()  # (forced: every map computed again)
+        refs = {p.ref for p in todo}
+        needed = refs | {s for p in todo for s in p.sources if s in plan.photometric}
+        kept = set()  # forced: every map computed again
+        if ctx.reuse:
+            kept = {name for name in needed if _link_photometric(plan, stereo, name, own=name in refs)}
         for name in plan.earlier - kept:  # its earlier photometric maps went missing: computed with its new sources
             plan.photometric[name] = plan.fresh[name]
         plan.geometric = reuse.geometric_items(plan.problems, plan.photometric, plan.inputs)
@@ -154,7 +156,7 @@ class Mvs(Stage):
             _drop_photometric(ctx, stereo)
         return {**_coverage(stereo, names, backend="cpu"), "reused": len(plan.reused), "computed": len(todo),
                 "photometric_computed": len(photometric),
-                "photometric_reused": len(kept & {p.ref for p in todo})}
+                "photometric_reused": len(kept & refs)}
 
     def reusable(self, ctx: StageContext, cfg: MvsConfig) -> str | None:
         if backend_of(cfg) != "cpu":
