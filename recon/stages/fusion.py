@@ -15,7 +15,9 @@ from recon.stage import Stage, StageContext, StageError, register
 
 @dataclass(frozen=True)
 class FusionConfig:
-    min_num_pixels: int = opt(3, "fewest depth-map pixels (views) that must agree on a point", ge=1)
+    min_num_pixels: int = opt(2, "fewest depth-map pixels (views) that must agree on a point; 2 rather than 3 keeps "
+                                 "surface only two photos see (a survey's edges, a walk's corners): zoo, "
+                                 "docs/DECISIONS.md", ge=1)
     max_reproj_error: float = opt(1.0, "largest reprojection error between agreeing views (px); smaller merges "
                                        "fewer pixels into each point: a denser cloud (COLMAP: 2)", gt=0)
     max_depth_error: float = opt(0.01, "largest relative depth difference between agreeing views", gt=0)
