@@ -96,8 +96,8 @@ def _mix_views(atlas: np.ndarray, face_map: np.ndarray, bary: np.ndarray, faces:
             if len(at) == 0:
                 continue
             cam = cameras[j]
-            at = at[unobstructed(points[at], cam, depths[j])]
-            uv, _ = project(cam.K, cam.R, cam.t, points[at])
+            clear, uv = unobstructed(points[at], cam, depths[j])
+            at, uv = at[clear], uv[clear]
             total[at] += sample_bilinear(photo(j), uv[:, 0], uv[:, 1]) * q[at, None]
             weight[at] += q[at]
         flat[covered] = total / weight[:, None]

@@ -88,7 +88,7 @@ def blend_seams(atlas: np.ndarray, lay: Layout, vertices: np.ndarray, faces: np.
         lab = labels[f][edge]
         for j in np.unique(lab):
             sel = np.flatnonzero(lab == j)
-            clear[sel] &= unobstructed(point[sel], cameras[j], depths[j])
+            clear[sel] &= unobstructed(point[sel], cameras[j], depths[j])[0]
     edge, t = edge[clear], t[clear]
     if len(edge) == 0:
         return atlas

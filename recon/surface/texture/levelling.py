@@ -19,7 +19,6 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
-from recon.geometry.transforms import project
 from recon.surface.indexing import unique_rows
 from recon.surface.texture.raster import sample_bilinear
 from recon.surface.texture.views import unobstructed
@@ -65,9 +64,9 @@ def seam_samples(vertices, faces, labels, patch, pairs, edge_vertices, images, c
             sel = np.flatnonzero(lab == j)
             cam = cameras[j]
             p = pts[sel].reshape(-1, 3)
-            uv, _ = project(cam.K, cam.R, cam.t, p)
+            seen, uv = unobstructed(p, cam, depths[j])
             colors[sel, side] = sample_bilinear(images[j], uv[:, 0], uv[:, 1]).reshape(len(sel), _SAMPLES, -1)
-            clear[sel] &= unobstructed(p, cam, depths[j]).reshape(len(sel), _SAMPLES)
+            clear[sel] &= seen.reshape(len(sel), _SAMPLES)
     return fpairs, ev, colors, clear
 
 

@@ -88,10 +88,10 @@ def view_quality(vertices: np.ndarray, faces: np.ndarray, images: Sequence[np.nd
     return quality
 
 
-def unobstructed(points: np.ndarray, cam, depth: np.ndarray) -> np.ndarray:
+def unobstructed(points: np.ndarray, cam, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Whether each world point (N, 3) is what all four pixels of its bilinear footprint in the mesh's depth
     map (camera z, inf where empty) show: false at occlusions and within a pixel of a silhouette, where a
-    photo's colour mixes in the occluder or background."""
+    photo's colour mixes in the occluder or background; and the points' pixels (N, 2), for sampling."""
     h, w = depth.shape
     uv, z = project(cam.K, cam.R, cam.t, points)
     ok = (z > 0) & np.all(np.isfinite(uv), axis=1)
@@ -100,4 +100,4 @@ def unobstructed(points: np.ndarray, cam, depth: np.ndarray) -> np.ndarray:
     for dy in (0, 1):
         for dx in (0, 1):
             ok &= np.abs(depth[y0 + dy, x0 + dx] - z) <= 2 * _DEPTH_TOL * z
-    return ok
+    return ok, uv
