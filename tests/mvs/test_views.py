@@ -45,13 +45,13 @@ def test_the_far_bound_reaches_the_points_in_view_that_three_other_photos_agree_
         moved_rec.points3D[pid].xyz = at(x_cam)
         return {p.ref: p for p in select_problems(moved_rec)}
 
-    def ranges(problems):
-        return {k: (p.depth_min, p.depth_max) for k, p in problems.items() if k == image.name}
+    def range_of(problems):
+        return problems[image.name].depth_min, problems[image.name].depth_max
 
-    assert ranges(moved(3, [0.0, 0.0, -far])) == ranges(before)  # behind the camera
-    assert ranges(moved(3, [10 * far, 0.0, far])) == ranges(before)  # in front, outside the image
+    assert range_of(moved(3, [0.0, 0.0, -far])) == range_of(before)  # behind the camera
+    assert range_of(moved(3, [10 * far, 0.0, far])) == range_of(before)  # in front, outside the image
     # on its optical axis: a point two photos matched (a mismatch as often as not) leaves the range as it was
-    assert ranges(moved(2, [0.0, 0.0, far])) == ranges(before)
+    assert range_of(moved(2, [0.0, 0.0, far])) == range_of(before)
     after = moved(3, [0.0, 0.0, far])[image.name]
     assert after.depth_max == pytest.approx(far * (1 + MVSOptions().depth_margin))
     assert after.depth_min == before[image.name].depth_min  # the near bound stays on the view's own points
