@@ -5,7 +5,8 @@ scene's extent (recon.eval.surface, through ``recon.api.evaluate``: the model is
 ground truth on its camera centres and axes, refined on its sparse points' reprojection in the true
 cameras; recon.eval.workspace says why), and in the scene's held-out views the
 masked PSNR of the textured mesh beside that of the vertex-coloured mesh (the baseline a texture
-must beat) and the texture's coverage; seconds per stage. Then the mean and the worst scene. Beside
+must beat) and the texture's coverage; seconds to render the scene (meant to be under a minute at 640x480;
+near 0 where an earlier run's rendering is reused) and per stage. Then the mean and the worst scene. Beside
 them, to tell which part of the chain lost a scene's quality: the cameras' relative-pose AUC at 5
 degrees (sfm) and the final depth maps' accuracy and completeness at 0.2 % (mvs; recon.eval.depth).
 
@@ -180,7 +181,7 @@ def print_table(rows: list[dict], summ: dict) -> None:
     short = {"preprocess": "prep", "features": "feat", "matching": "match", "undistort": "undist",
              "fusion": "fuse", "texture": "tex"}
     head = (f"{'scene':<16}{'reg':>6}{'AUC5':>6}{'dAcc.2':>7}{'dCmp.2':>7}{'fusedF.2':>9}{'fusedF.5':>9}{'meshF.2':>8}{'meshF.5':>8}{'texPSNR':>8}"
-            f"{'vcPSNR':>7}{'cover':>7} |" + "".join(f"{short.get(s, s):>7}" for s in stages) + f"{'total':>8}")
+            f"{'vcPSNR':>7}{'cover':>7} |{'render':>7}" + "".join(f"{short.get(s, s):>7}" for s in stages) + f"{'total':>8}")
     print(head)
     print("-" * len(head))
 
@@ -195,7 +196,7 @@ def print_table(rows: list[dict], summ: dict) -> None:
         print(f"{r['scene']:<16}{reg:>6}{fig(r.get('pose_auc@5'), '6.2f')}{fig(depth.get('accuracy@0.002'), '7.3f')}"
               f"{fig(depth.get('completeness@0.002'), '7.3f')}{fig(f[0], '9.3f')}{fig(f[1], '9.3f')}{fig(f[2], '8.3f')}{fig(f[3], '8.3f')}"
               f"{fig(r.get('psnr'), '8.2f')}{fig(r.get('psnr_vertex_colours'), '7.2f')}{fig(r.get('coverage'), '7.3f')} |"
-              + "".join(f"{secs[s]:>7.1f}" if s in secs else f"{'-':>7}" for s in stages)
+              f"{fig(r.get('render_seconds'), '7.1f')}" + "".join(f"{secs[s]:>7.1f}" if s in secs else f"{'-':>7}" for s in stages)
               + f"{sum(secs.values()):>8.1f}")
         if "error" in r:
             print(f"{'':<16}failed: {r['error']}")
