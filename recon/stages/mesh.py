@@ -1,5 +1,6 @@
-"""mesh: a surface from the dense reconstruction (screened Poisson on fused points, or TSDF + marching
-cubes on the depth maps), cleaned and decimated; written as a vertex-coloured mesh.ply."""
+"""mesh: a surface from the dense reconstruction (screened Poisson on fused points, a visibility-based
+Delaunay graph cut of the fused points and the views' lines of sight, or TSDF + marching cubes on the
+depth maps), cleaned and decimated; written as a vertex-coloured mesh.ply."""
 
 from __future__ import annotations
 
@@ -52,13 +53,15 @@ class Mesh(Stage):
     Config = MeshConfig
     requires = (DenseScene, DepthMaps, FusedCloud)
     produces = SurfaceMesh
-    summary = "Poisson (default) or TSDF surface, trimmed, cleaned, decimated: mesh.ply"
+    summary = "Poisson (default), Delaunay graph-cut or TSDF surface, trimmed, cleaned, decimated: mesh.ply"
 
     def run(self, ctx: StageContext, cfg: MeshConfig) -> dict:
         from recon.surface.cleanup import clean_mesh, keep_faces
 
         if cfg.method == "poisson":
             mesh = self._poisson(ctx, cfg)
+        elif cfg.method == "delaunay":
+            mesh = self._delaunay(ctx, cfg)
         else:
             mesh = self._tsdf(ctx, cfg)
         mesh = clean_mesh(mesh, cfg)
@@ -90,6 +93,21 @@ class Mesh(Stage):
                              "check the fusion stage, or use mesh.method: tsdf")
         colors = (np.asarray(cloud.colors) * 255).round().astype(np.uint8) if cloud.has_colors() else None
         return poisson_mesh(points, np.asarray(cloud.normals), colors, cfg)
+
+    def _delaunay(self, ctx: StageContext, cfg: MeshConfig):
+        from recon._open3d import open3d
+        from recon.surface.delaunay import delaunay_mesh
+
+        cloud = open3d().io.read_point_cloud(str(ctx.input(FusedCloud).path))
+        points = np.asarray(cloud.points)
+        if len(points) < 100:
+            raise StageError("mesh: dense/fused.ply has too few points for Delaunay meshing; check the fusion stage")
+        colors = (np.asarray(cloud.colors) * 255).round().astype(np.uint8) if cloud.has_colors() else None
+        views = ctx.input(DepthMaps).of_views(ctx.input(DenseScene).views())
+        try:
+            return delaunay_mesh(points, colors, views, cfg)
+        except ValueError as e:
+            raise StageError(f"mesh: no Delaunay surface from dense/fused.ply: {e}; use mesh.method: poisson") from e
 
     def _tsdf(self, ctx: StageContext, cfg: MeshConfig):
         import cv2

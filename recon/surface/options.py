@@ -12,9 +12,14 @@ from recon.options import opt
 class MeshOptions:
     """How a surface is built from fused points (Poisson) or depth maps (TSDF), then cleaned."""
 
-    method: Literal["poisson", "tsdf"] = opt("poisson", "poisson: screened Poisson on oriented fused points; tsdf: fuse depth maps")
+    method: Literal["poisson", "tsdf", "delaunay"] = opt(
+        "poisson", "poisson: screened Poisson on oriented fused points; tsdf: fuse depth maps; delaunay: graph cut "
+                   "of the fused points' tetrahedra by the views' lines of sight (as OpenMVS); zoo mesh F@0.2 % mean "
+                   "below Poisson's, above it where the cloud has weakly supported points off the surface "
+                   "(docs/DECISIONS.md)")
     depth: int = opt(9, "Poisson octree depth: cells of the points' extent / 2^depth, the extent without "
-                                "the farthest 0.1 % of the points per axis where those spread it twice as wide", ge=5, le=13)
+                                "the farthest 0.1 % of the points per axis where those spread it twice as wide; "
+                                "delaunay keeps one point per cell of half that size", ge=5, le=13)
     point_weight: float = opt(4.0, "Poisson screening weight: higher follows the points more closely", ge=0.0)
     deterministic: bool = opt(True, "single-threaded Poisson: the same mesh from the same points (multi-threaded, "
                                     "its densities differ in the last digits, so trimming cuts other faces)")

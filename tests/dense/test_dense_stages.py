@@ -127,6 +127,30 @@ def test_textured_exports_load_with_their_texture(dense_workspace):
     assert colored.visual.vertex_colors[:, :3].std() > 10
 
 
+def test_delaunay_mesh_lies_on_the_surface_and_is_textured(dense_workspace, small_scene, tmp_path):
+    """mesh.method: delaunay through the pipeline: the graph-cut surface of the fused points, textured."""
+    import shutil
+
+    import trimesh
+
+    ws = tmp_path / "ws"
+    shutil.copytree(dense_workspace, ws, symlinks=True)
+    done = run_cli(ws, small_scene, "mesh.method=delaunay")
+    assert done.returncode == 0, done.stderr
+    manifest = json.loads(_newest(ws / ".recon" / "cache" / "mesh").read_text())
+    assert manifest["config"]["method"] == "delaunay"
+    poisson = recon.api.evaluate(dense_workspace, small_scene)["mesh"]
+    mesh = recon.api.evaluate(ws, small_scene)["mesh"]
+    assert mesh["accuracy@0.005"] > 70 and mesh["completeness@0.005"] > 50  # as Poisson's, quick settings
+    assert mesh["fscore@0.005"] > poisson["fscore@0.005"] - 10
+    glb = trimesh.load(ws / "textured.glb", force="mesh")
+    assert len(glb.faces) > 1000 and np.asarray(glb.visual.material.baseColorTexture).std() > 10
+
+
+def _newest(cache: Path) -> Path:
+    return max(cache.glob("*/manifest.json"), key=lambda p: p.stat().st_mtime_ns)
+
+
 def test_textured_glb_is_the_right_way_up(dense_workspace):
     """The photos' up is -Y in COLMAP's mapper frame (its first camera's: y points down the image);
     glTF viewers take +Y as up. The scene's ground (a 6 x 6 square, objects standing on it) is then
