@@ -72,6 +72,14 @@ def _count_view(points, R, t, K, depth, agree, margin, agreeing, seeing_through)
             seeing_through[i] += 1
 
 
+def _count(points: np.ndarray, cam: ViewCamera, depth: np.ndarray, agree: float, margin: float,
+           agreeing: np.ndarray, seeing_through: np.ndarray) -> None:
+    h, w = depth.shape
+    K = np.diag([w / cam.width, h / cam.height, 1.0]) @ cam.K
+    _count_view(points, np.ascontiguousarray(cam.R), np.ascontiguousarray(cam.t), K,
+                np.ascontiguousarray(depth, dtype=np.float32), agree, margin, agreeing, seeing_through)
+
+
 def free_space_counts(points: np.ndarray, views: Iterable[tuple[ViewCamera, np.ndarray]],
                       agree: float, margin: float) -> tuple[np.ndarray, np.ndarray]:
     """For ``points`` (N, 3): how many of ``views`` (camera, its depth map; the camera at any resolution)
@@ -80,11 +88,16 @@ def free_space_counts(points: np.ndarray, views: Iterable[tuple[ViewCamera, np.n
     agreeing = np.zeros(len(points), np.int32)
     seeing_through = np.zeros(len(points), np.int32)
     for cam, depth in views:
-        h, w = depth.shape
-        K = np.diag([w / cam.width, h / cam.height, 1.0]) @ cam.K
-        _count_view(points, np.ascontiguousarray(cam.R), np.ascontiguousarray(cam.t), K,
-                    np.ascontiguousarray(depth, dtype=np.float32), agree, margin, agreeing, seeing_through)
+        _count(points, cam, depth, agree, margin, agreeing, seeing_through)
     return agreeing, seeing_through
+
+
+def agreeing_points(points: np.ndarray, cam: ViewCamera, depth: np.ndarray, agree: float) -> np.ndarray:
+    """Per point of ``points`` (N, 3): whether ``cam``'s depth map (at any resolution) agrees with it."""
+    agreeing = np.zeros(len(points), np.int32)
+    _count(np.ascontiguousarray(points, dtype=np.float64), cam, depth, agree, math.inf, agreeing,
+           np.zeros(len(points), np.int32))
+    return agreeing > 0
 
 
 def in_free_space(points: np.ndarray, views: Iterable[tuple[ViewCamera, np.ndarray]],

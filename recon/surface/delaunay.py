@@ -38,6 +38,7 @@ import trimesh
 from numba import njit
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
+from recon.mvs.free_space import agreeing_points
 from recon.mvs.views import ViewCamera
 from recon.surface.options import MeshOptions
 from recon.surface.poisson import robust_extent
@@ -141,35 +142,11 @@ def _cast(points, centres, ray_point, ray_view, vertex_tet, transform, neighbors
             tet = nxt
 
 
-@njit(cache=True)
-def _agreeing(points, R, t, K, depth, agree):  # pragma: no cover - numba
-    """Per point: whether this view's depth map holds the point's depth (within ``agree``, relative)."""
-    h, w = depth.shape
-    out = np.zeros(points.shape[0], np.bool_)
-    for i in range(points.shape[0]):
-        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
-        x = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz + t[0]
-        y = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz + t[1]
-        z = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz + t[2]
-        if z <= 0.0:
-            continue
-        col = int(math.floor((K[0, 0] * x + K[0, 1] * y) / z + K[0, 2]))
-        row = int(math.floor(K[1, 1] * y / z + K[1, 2]))
-        if col < 0 or row < 0 or col >= w or row >= h:
-            continue
-        dd = depth[row, col]
-        out[i] = dd > 0.0 and abs(dd - z) <= agree * z
-    return out
-
-
 def lines_of_sight(points: np.ndarray, views: Iterable[tuple[ViewCamera, np.ndarray]], agree: float):
     """(point index, view index) of every view whose depth map agrees with a point, and the views' centres."""
-    from recon.mvs.views import scaled_to
-
     ray_point, ray_view, centres = [], [], []
-    for view, depth in views:
-        cam = scaled_to(view, depth.shape[1], depth.shape[0])
-        seen = np.flatnonzero(_agreeing(points, cam.R, cam.t, cam.K, depth, agree))
+    for cam, depth in views:
+        seen = np.flatnonzero(agreeing_points(points, cam, depth, agree))
         ray_point.append(seen)
         ray_view.append(np.full(len(seen), len(centres), np.int64))
         centres.append(-cam.R.T @ cam.t)
