@@ -46,6 +46,15 @@ def _in_free_space(ctx: StageContext, mesh) -> np.ndarray:
     return in_free_space(np.asarray(mesh.triangles_center), views, AGREE, MARGIN)
 
 
+def _fused_cloud(ctx: StageContext):
+    """The fused cloud (open3d) and its colours (N x 3 uint8; None without)."""
+    from recon._open3d import open3d
+
+    cloud = open3d().io.read_point_cloud(str(ctx.input(FusedCloud).path))
+    colors = (np.asarray(cloud.colors) * 255).round().astype(np.uint8) if cloud.has_colors() else None
+    return cloud, colors
+
+
 @register
 class Mesh(Stage):
     name = "mesh"
@@ -83,29 +92,23 @@ class Mesh(Stage):
                 "masked_faces_dropped": masked[1] if masked else 0}
 
     def _poisson(self, ctx: StageContext, cfg: MeshConfig):
-        from recon._open3d import open3d
         from recon.surface.poisson import poisson_mesh
 
-        cloud = open3d().io.read_point_cloud(str(ctx.input(FusedCloud).path))
-        points = np.asarray(cloud.points)
-        if len(points) < 100 or not cloud.has_normals():
+        cloud, colors = _fused_cloud(ctx)
+        if len(cloud.points) < 100 or not cloud.has_normals():
             raise StageError("mesh: dense/fused.ply has too few oriented points for Poisson meshing; "
                              "check the fusion stage, or use mesh.method: tsdf")
-        colors = (np.asarray(cloud.colors) * 255).round().astype(np.uint8) if cloud.has_colors() else None
-        return poisson_mesh(points, np.asarray(cloud.normals), colors, cfg)
+        return poisson_mesh(np.asarray(cloud.points), np.asarray(cloud.normals), colors, cfg)
 
     def _delaunay(self, ctx: StageContext, cfg: MeshConfig):
-        from recon._open3d import open3d
         from recon.surface.delaunay import delaunay_mesh
 
-        cloud = open3d().io.read_point_cloud(str(ctx.input(FusedCloud).path))
-        points = np.asarray(cloud.points)
-        if len(points) < 100:
+        cloud, colors = _fused_cloud(ctx)
+        if len(cloud.points) < 100:
             raise StageError("mesh: dense/fused.ply has too few points for Delaunay meshing; check the fusion stage")
-        colors = (np.asarray(cloud.colors) * 255).round().astype(np.uint8) if cloud.has_colors() else None
         views = ctx.input(DepthMaps).of_views(ctx.input(DenseScene).views())
         try:
-            return delaunay_mesh(points, colors, views, cfg)
+            return delaunay_mesh(np.asarray(cloud.points), colors, views, cfg)
         except ValueError as e:
             raise StageError(f"mesh: no Delaunay surface from dense/fused.ply: {e}; use mesh.method: poisson") from e
 

@@ -10,7 +10,7 @@ from recon.options import opt
 
 @dataclass(frozen=True)
 class MeshOptions:
-    """How a surface is built from fused points (Poisson) or depth maps (TSDF), then cleaned."""
+    """How a surface is built from fused points (Poisson, Delaunay) or depth maps (TSDF), then cleaned."""
 
     method: Literal["poisson", "tsdf", "delaunay"] = opt(
         "poisson", "poisson: screened Poisson on oriented fused points; tsdf: fuse depth maps; delaunay: graph cut "
