@@ -47,9 +47,9 @@ log = logging.getLogger(__name__)
 
 
 @njit(cache=True)
-def _barycentric(transform, tet, x):  # pragma: no cover - numba
-    """The four barycentric coordinates of ``x`` in tetrahedron ``tet`` (scipy's affine transform)."""
-    out = np.empty(4)
+def _barycentric(transform, tet, x, out):  # pragma: no cover - numba
+    """The four barycentric coordinates of ``x`` in tetrahedron ``tet`` (scipy's affine transform), into
+    ``out``."""
     last = 1.0
     for k in range(3):
         v = 0.0
@@ -58,15 +58,15 @@ def _barycentric(transform, tet, x):  # pragma: no cover - numba
         out[k] = v
         last -= v
     out[3] = last
-    return out
 
 
 @njit(cache=True)
-def _locate(transform, neighbors, start, x, max_steps):  # pragma: no cover - numba
-    """The tetrahedron holding ``x``, walking from ``start`` towards it; -1 outside the hull."""
+def _locate(transform, neighbors, start, x, max_steps, b):  # pragma: no cover - numba
+    """The tetrahedron holding ``x``, walking from ``start`` towards it; -1 outside the hull. ``b``: a
+    buffer of 4."""
     tet = start
     for _ in range(max_steps):
-        b = _barycentric(transform, tet, x)
+        _barycentric(transform, tet, x, b)
         worst = 0
         for k in range(1, 4):
             if b[k] < b[worst]:
@@ -90,6 +90,8 @@ def _cast(points, centres, ray_point, ray_view, vertex_tet, transform, neighbors
     reaches the camera or leaves the hull, and to the sink link of the one just behind the point."""
     x = np.empty(3)
     d = np.empty(3)
+    b = np.empty(4)
+    rate = np.empty(4)
     for r in range(ray_point.shape[0]):
         p, c = ray_point[r], ray_view[r]
         length = 0.0
@@ -102,18 +104,17 @@ def _cast(points, centres, ray_point, ray_view, vertex_tet, transform, neighbors
         t0 = step[p] / length
         for m in range(3):
             x[m] = points[p, m] - t0 * d[m]
-        behind = _locate(transform, neighbors, vertex_tet[p], x, 1000)
+        behind = _locate(transform, neighbors, vertex_tet[p], x, 1000, b)
         if behind >= 0:
             sink[behind] += weight
         for m in range(3):
             x[m] = points[p, m] + t0 * d[m]
-        tet = _locate(transform, neighbors, vertex_tet[p], x, 1000)
+        tet = _locate(transform, neighbors, vertex_tet[p], x, 1000, b)
         if tet < 0:
             continue
         t = t0
         for _ in range(100000):
-            b = _barycentric(transform, tet, x)
-            rate = np.empty(4)
+            _barycentric(transform, tet, x, b)
             last = 0.0
             for k in range(3):
                 v = 0.0
@@ -200,22 +201,30 @@ MAX_EDGE_CELLS = 16.0
 AGREE = 0.01
 
 
-def _seen_from_outside(points, simplices, tet, k, ray_point, ray_view, centres) -> np.ndarray:
-    """Per hull facet (facet ``k`` of tetrahedron ``tet``): whether each of its corners is seen by a view
-    on the facet's outer side. The outside of the hull is free space, so the hull facets of inside
-    tetrahedra bound the surface too (an object's convex side); those no view faces are the hull's
-    underside, below a terrain or behind a facade, where no view looked."""
-    if len(tet) == 0:
+def _facets(points: np.ndarray, simplices: np.ndarray, tet: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """The corners (F, 3) of facet ``k`` of each tetrahedron ``tet``, ordered so that the facet's normal
+    points away from the tetrahedron."""
+    faces = simplices[tet[:, None], _OTHERS[k]]
+    n = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
+    flip = ((points[simplices[tet, k]] - points[faces[:, 0]]) * n).sum(1) > 0
+    faces[flip] = faces[flip][:, ::-1]
+    return faces
+
+
+def _seen_from_outside(points, faces, ray_point, ray_view, centres) -> np.ndarray:
+    """Per hull facet of an inside tetrahedron (``faces``, turned outwards): whether each of its corners
+    is seen by a view on the facet's outer side. The outside of the hull is free space, so such facets
+    bound the surface too (an object's convex side); those no view faces are the hull's underside, below
+    a terrain or behind a facade, where no view looked."""
+    if len(faces) == 0:
         return np.zeros(0, bool)
-    corners = simplices[tet[:, None], _OTHERS[k]]
-    used, corners = np.unique(corners, return_inverse=True)  # (only the hull's points: a small share)
+    used, corners = np.unique(faces, return_inverse=True)  # (only the hull's points: a small share)
     corners = corners.reshape(-1, 3)
     ray = np.isin(ray_point, used)
     seen = np.zeros((len(used), len(centres)), bool)
     seen[np.searchsorted(used, ray_point[ray]), ray_view[ray]] = True
-    p = points[used[corners]]
+    p = points[faces]
     normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    normal *= -np.sign(((points[simplices[tet, k]] - p[:, 0]) * normal).sum(1))[:, None]  # away from the tet
     facing = ((centres[None] - p[:, :1]) * normal[:, None]).sum(2) > 0
     return np.all([(seen[corners[:, j]] & facing).any(axis=1) for j in range(3)], axis=0)
 
@@ -264,23 +273,20 @@ def delaunay_mesh(points: np.ndarray, colors: np.ndarray | None, views: Iterable
     graph.maxflow()
     inside = graph.get_grid_segments(nodes)  # True: on the sink's side
     surface = inside[tet] & ~inside[other]
-    ft, fk = tet[surface], k[surface]
     hull_t, hull_k = np.nonzero((neighbors < 0) & inside[:, None])
-    seen = _seen_from_outside(points, simplices, hull_t, hull_k, ray_point, ray_view, centres)
-    ft, fk = np.concatenate([ft, hull_t[seen]]), np.concatenate([fk, hull_k[seen]])
-    faces = simplices[ft[:, None], _OTHERS[fk]]
+    hull = _facets(points, simplices, hull_t, hull_k)
     # each face turned away from its inside tetrahedron, towards the free side
-    n = np.cross(points[faces[:, 1]] - points[faces[:, 0]], points[faces[:, 2]] - points[faces[:, 0]])
-    flip = ((points[simplices[ft, fk]] - points[faces[:, 0]]) * n).sum(1) > 0
-    faces[flip] = faces[flip][:, ::-1]
+    faces = np.concatenate([_facets(points, simplices, tet[surface], k[surface]),
+                            hull[_seen_from_outside(points, hull, ray_point, ray_view, centres)]])
     corners = points[faces]
     longest = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2).max(axis=1)
-    faces = faces[longest <= MAX_EDGE_CELLS * cell]
+    short = longest <= MAX_EDGE_CELLS * cell
+    faces = faces[short]
     out = trimesh.Trimesh(points, faces, process=False)
     if colors is not None:
         out.visual.vertex_colors = colors
     out.remove_unreferenced_vertices()
     log.info("delaunay: %d of %d tetrahedra inside, %d faces (%d longer than %g cells dropped) in %.1f s",
-             int(inside.sum()), len(simplices), len(out.faces), int(surface.sum()) - len(faces),
+             int(inside.sum()), len(simplices), len(out.faces), int((~short).sum()),
              MAX_EDGE_CELLS, time.perf_counter() - start)
     return out
