@@ -17,8 +17,8 @@ The variant follows Gipuma (Galliani et al., ICCV 2015) and ACMH/ACMM (Xu and Ta
   that saves a division per sample and is negligible unless the plane is seen nearly edge-on);
 * multi-view aggregation is the mean of the K best source costs (Gipuma's "best K"); this departs from
   ACMM's probabilistic per-pixel view-selection weights, which cost more per hypothesis; a source the
-  plane projects outside of counts as an uncorrelated window (:data:`UNSEEN_COST`), so that a pixel
-  only two sources see can still pass the filter;
+  plane projects outside of counts as an uncorrelated window (:data:`UNSEEN_COST`), and the filter
+  leaves it out (:func:`seen_cost`), so that a pixel only one source sees can pass;
 * coarse to fine (ACMM's multi-scale scheme without its detail restorer): each finer level starts from
   the coarser planes re-intersected with its own pixel rays, then runs a few sweeps; there, each
   pixel is matched only against the K sources that were best for its upsampled plane (a cheap form
@@ -56,9 +56,8 @@ log = logging.getLogger(__name__)
 
 MAX_COST = 2.0
 #: photometric cost of a source the pixel's plane projects outside of: an uncorrelated window (NCC 0), not
-#: the worst match. With MAX_COST a pixel that only two sources see (the edges of a survey, of a walk)
-#: could never average under ``filter_max_cost`` over top_k = 3 sources (at best (0 + 0 + 2) / 3), and
-#: the zoo's aerial_grid kept 5 % of its surface seen by exactly 3 views (81 % of that seen by 4)
+#: the worst match, so that a wrong plane carried out of every source's image does not beat the true
+#: plane seen by few. The filter leaves these terms out (:func:`seen_cost`)
 UNSEEN_COST = 1.0
 ALL_VIEWS, SELECT_VIEWS, KEEP_VIEWS = 0, 1, 2  # view-mask modes of evaluate()
 _MIN_COS = 0.05  # hypotheses whose plane is seen at a grazing angle (|cos| below this) are rejected
@@ -508,6 +507,49 @@ def remove_geometric_term(ref, dims, kinv, A, b, src_depth, M, c, geo_weight, ge
                         error = min(_reprojection_error(src_depth, s, cu, cv, px, py, M, c), geo_max)
                 term += geo_weight * error
             cost[y, x] = cost[y, x] - term / n_views if n_views else MAX_COST
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def seen_cost(depth, normal, kinv, A, b, dims, views, cost, top_k, out):
+    """``cost`` (photometric: the mean of the top_k best sources of each pixel's view mask) without the
+    terms of the sources its plane projects outside of (each :data:`UNSEEN_COST`): the matching cost
+    over the sources that see the pixel, which :func:`filter_depth` tests. A pixel seen by one source
+    alone (ground at the edge of a survey that two photos share) otherwise averages at least
+    2 * UNSEEN_COST / 3 over top_k = 3 sources, above any useful ``filter_max_cost``.
+
+    Exact for masks of at most top_k sources (SELECT_VIEWS: the mean is over the whole mask); for a
+    larger mask, the unseen sources are taken to be among its best top_k only where fewer than top_k
+    sources see the plane (as they are while every seen source costs less than UNSEEN_COST). A pixel
+    no source sees gets MAX_COST.
+    """
+    height, width = depth.shape
+    for y in prange(height):
+        for x in range(width):
+            out[y, x] = cost[y, x]
+            if not depth[y, x] > 0.0 or cost[y, x] >= MAX_COST:
+                continue
+            n0, n1, n2 = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
+            rx, ry, rz = _ray(kinv, x, y)
+            m0, m1, m2 = _plane_row(kinv, depth[y, x] * (n0 * rx + n1 * ry + n2 * rz), n0, n1, n2)
+            px = x + 0.5
+            py = y + 0.5
+            n_views = 0
+            unseen = 0
+            for s in range(A.shape[0]):
+                if not (views[y, x] >> s) & 1:
+                    continue
+                n_views += 1
+                h00, h01, h02, h10, h11, h12, h20, h21, h22 = _homography(A, b, s, m0, m1, m2)
+                cz = h20 * px + h21 * py + h22
+                if cz > 1e-6:  # (behind the camera costs MAX_COST, not UNSEEN_COST)
+                    cu = (h00 * px + h01 * py + h02) / cz
+                    cv = (h10 * px + h11 * py + h12) / cz
+                    unseen += not (cu >= 0.0 and cv >= 0.0 and cu < dims[s, 0] and cv < dims[s, 1])
+            k = min(top_k, n_views)
+            counted = max(0, unseen - (n_views - k))
+            if counted == 0:
+                continue
+            out[y, x] = (k * cost[y, x] - counted * UNSEEN_COST) / (k - counted) if k > counted else MAX_COST
 
 
 @njit(cache=True, fastmath=True)
@@ -1030,16 +1072,18 @@ def own_texture(ref, window, sigma_spatial, sigma_color, out):
 
 
 def filter_depth(view: Checked, state: State, options: MVSOptions) -> State:
-    """Zero the pixels whose photometric cost (``state.cost``, as :func:`geometric_depth` and
-    :func:`photometric_costs` give it) is high, that fewer than ``filter_min_consistent`` source
-    depth maps confirm, or whose own side of the window is untextured (:func:`own_texture` below
-    ``min_texture``)."""
+    """Zero the pixels whose photometric cost over the sources that see them (:func:`seen_cost` of
+    ``state.cost``, as :func:`geometric_depth` and :func:`photometric_costs` give it) is high, that
+    fewer than ``filter_min_consistent`` source depth maps confirm, or whose own side of the window is
+    untextured (:func:`own_texture` below ``min_texture``)."""
     level = view.level
     g = level.geometry
     count = consistent_views(state.depth, state.normal, g.kinv, g.A, g.b, view.src_depth, view.depth_dims, g.M, g.c,
                              options.filter_max_reprojection, options.filter_max_depth_error,
                              options.filter_grazing_allowance)
-    keep = (state.cost <= options.filter_max_cost) & (count >= options.filter_min_consistent)
+    cost = np.empty_like(state.cost)
+    seen_cost(state.depth, state.normal, g.kinv, g.A, g.b, level.dims, state.views, state.cost, options.top_k, cost)
+    keep = (cost <= options.filter_max_cost) & (count >= options.filter_min_consistent)
     keep &= state.depth > 0
     if options.min_texture > 0:
         window, sigma_spatial, sigma_color, _, _ = _kernel_params(options)
@@ -1048,4 +1092,4 @@ def filter_depth(view: Checked, state: State, options: MVSOptions) -> State:
         keep &= texture >= options.min_texture
     return State(np.where(keep, state.depth, 0).astype(np.float32),
                  np.where(keep[..., None], state.normal, 0).astype(np.float32),
-                 np.where(keep, state.cost, MAX_COST).astype(np.float32), state.views)
+                 np.where(keep, cost, MAX_COST).astype(np.float32), state.views)

@@ -224,6 +224,26 @@ def test_a_pixel_that_two_sources_see_can_pass_the_filter(plane):
     assert float(np.median(state.cost[inner])) < OPTIONS.filter_max_cost
 
 
+def test_a_pixel_that_one_source_sees_can_pass_the_filter(plane):
+    """Ground at the edge of a survey that two photos share: the reference's other sources look
+    elsewhere. Its mean over top_k = 3 takes two uncorrelated windows (at least 2 / 3), above
+    filter_max_cost; the filter tests the cost over the sources that see the plane, so it keeps the
+    true plane that the one source's depth map confirms, and still drops a wrong one."""
+    images, cams, depths, normal = plane
+    away = [pm.Camera(c.K, c.R, c.t - np.array([10.0, 0.0, 0.0])) for c in cams[2:]]
+    empty = np.zeros_like(depths[0])
+    view = pm.checked(images[0], images[1:], cams[0], [cams[1], *away], [depths[1], empty, empty])
+    inner = (slice(12, -12), slice(24, -12))  # (the one source, to the right, misses the left columns)
+    true = _costed(view, depths[0], normal)
+    assert OPTIONS.top_k == 3
+    assert float(np.min(true.cost[inner])) > 2 / 3 > OPTIONS.filter_max_cost
+    kept = pm.filter_depth(view, true, OPTIONS)
+    assert np.mean(kept.depth[inner] > 0) > 0.95
+    assert float(np.median(kept.cost[inner])) < 0.2  # the one source's own matching cost
+    wrong = pm.filter_depth(view, _costed(view, depths[0] * 1.05, normal), OPTIONS)
+    assert not wrong.depth[inner].any()
+
+
 def test_the_uniform_side_of_an_edge_gets_no_depth():
     """Pixels of a flat light grey region beside a textured one match on the texture alone (their
     bilateral window's variance comes from across the edge): given the edge's plane they pass the cost and the
