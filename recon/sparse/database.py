@@ -71,6 +71,12 @@ def read_keypoints(con: sqlite3.Connection, image_id: int) -> np.ndarray:
     return np.frombuffer(data, dtype=np.float32).reshape(rows, cols).copy()
 
 
+def stored_camera_params(con: sqlite3.Connection) -> dict[int, np.ndarray]:
+    """Camera id -> its stored intrinsic parameters (where the mapper starts from)."""
+    return {camera_id: np.frombuffer(params, dtype=np.float64).copy()
+            for camera_id, params in con.execute("SELECT camera_id, params FROM cameras")}
+
+
 def read_camera(con: sqlite3.Connection, image_id: int):
     """The pycolmap camera of an image, with its focal-length prior flag (COLMAP verifies a pair with
     an essential matrix only when both cameras have one, and a fisheye pair not at all without)."""

@@ -1,0 +1,80 @@
+"""The final bundle adjustment keeps distortion only where the observations call for it
+(recon.sparse.mapping.final_bundle_adjustment), on exactly known synthetic models."""
+
+import numpy as np
+import pycolmap
+import pytest
+
+from recon.sparse.mapping import final_bundle_adjustment
+from recon.stages.sfm import SfmConfig
+
+WIDTH, HEIGHT, FOCAL = 640, 480, 576.0
+NOISE_PX = 0.3
+
+
+def _look_at(centre: np.ndarray) -> np.ndarray:
+    """World-to-camera rotation of a camera at ``centre`` looking at the origin, y down."""
+    z = -centre / np.linalg.norm(centre)
+    x = np.cross([0.0, 0.0, -1.0], z)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z])
+
+
+def _model(k1: float, spread: float, seed: int = 0) -> pycolmap.Reconstruction:
+    """20 views on an orbit of radius 4 round points in a ball of radius ``spread`` (1.2 fills most
+    of each photo, 0.35 its middle), seen through one SIMPLE_RADIAL camera with distortion ``k1``;
+    observations are the exact projections plus Gaussian noise of NOISE_PX. The model starts from
+    the truth but with the distortion at zero, as a mapper's model would after refining it to the
+    noise: a bundle adjustment moves it from there."""
+    rng = np.random.default_rng(seed)
+    truth = pycolmap.Camera(model="SIMPLE_RADIAL", width=WIDTH, height=HEIGHT,
+                            params=[FOCAL, WIDTH / 2, HEIGHT / 2, k1], camera_id=1)
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera(model="SIMPLE_RADIAL", width=WIDTH, height=HEIGHT,
+                                                    params=[FOCAL, WIDTH / 2, HEIGHT / 2, 0.0], camera_id=1))
+    xyz = rng.normal(size=(600, 3))
+    xyz *= spread * rng.uniform(0, 1, (600, 1)) ** (1 / 3) / np.linalg.norm(xyz, axis=1, keepdims=True)
+    tracks = [pycolmap.Track() for _ in xyz]
+    for image_id in range(1, 21):
+        angle = 2 * np.pi * image_id / 20
+        centre = np.array([4 * np.cos(angle), 4 * np.sin(angle), 0.6 * np.sin(3 * angle)])
+        R = _look_at(centre)
+        t = -R @ centre
+        uv = truth.img_from_cam(xyz @ R.T + t)
+        uv += rng.normal(scale=NOISE_PX, size=uv.shape)
+        inside = np.nonzero((uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < WIDTH) & (uv[:, 1] < HEIGHT))[0]
+        image = pycolmap.Image(name=f"view_{image_id:02d}.jpg", camera_id=1, image_id=image_id)
+        image.points2D = pycolmap.Point2DList([pycolmap.Point2D(uv[p]) for p in inside])
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(R), t))
+        for idx, p in enumerate(inside):
+            tracks[p].add_element(image_id, idx)
+    for point, track in zip(xyz, tracks):
+        rec.add_point3D(point, track)
+    return rec
+
+
+def _final(rec, k1_start: float):
+    cfg = SfmConfig(final_refine_principal_point=False)
+    return final_bundle_adjustment(rec, cfg, {1: np.array([FOCAL, WIDTH / 2, HEIGHT / 2, k1_start])})
+
+
+def test_distortion_the_photos_show_is_kept():
+    rec = _final(_model(k1=-0.08, spread=1.2), 0.0)
+    assert rec.cameras[1].params[3] == pytest.approx(-0.08, abs=0.005)
+
+
+def test_distortion_fitted_to_noise_in_the_middle_of_the_photos_is_left_out():
+    """Points in the middle of each photo: a refined k1 trades off against the focal length and fits
+    the noise, gaining almost nothing; the model keeps the distortion it started from."""
+    model = _model(k1=0.0, spread=0.35)
+    refined = pycolmap.Reconstruction(model)
+    pycolmap.bundle_adjustment(refined)  # what a plain BA makes of it: some k1, not zero
+    assert refined.cameras[1].params[3] != 0.0
+    rec = _final(model, 0.0)
+    assert rec.cameras[1].params[3] == 0.0
+    assert rec.cameras[1].params[0] == pytest.approx(FOCAL, rel=0.01)
+
+
+def test_a_calibrated_distortion_is_where_it_is_held():
+    rec = _final(_model(k1=-0.05, spread=0.35), -0.05)
+    assert rec.cameras[1].params[3] == -0.05
