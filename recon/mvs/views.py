@@ -32,7 +32,12 @@ not count: the zoo's aerial_grid held 30-40 such points in each view's frame at 
 ground's depth, and facade_walk some at 16 to 25 times its facade's. In ranges that deep the depth maps
 agreed on points far below aerial_grid's ground (to 120 units under a scene 116 across; 95 % of them
 within 11 once these points no longer count), and its mesh F@0.2 % rose .703 -> .747 without them
-(docs/DECISIONS.md).
+(docs/DECISIONS.md). The view's own points count no differently: only where fewer than ``min_points``
+such points lie in its image does the 99th percentile of its own points' depths set the bound. Where a
+corner photo of a survey shares much of its ground with one other photo, more than 1 % of its own
+points can be two-photo mismatches far below the ground: two of aerial_grid's views had ranges 7 and 9
+times their deepest true depth, and their depth maps held 43 % and 67 % of their surface (66 % and 81 %
+with these points left out).
 
 ``keep`` gives views their sources of an earlier run (photos added to a workspace): a view keeps
 them while every one of them still qualifies as a source and its ``reselect_top`` best-scoring
@@ -202,7 +207,8 @@ def select_problems(reconstruction: pycolmap.Reconstruction, options: MVSOptions
             log.info("%s: too few points in front of the camera", cam.name)
             continue
         near = np.percentile(z, 1)
-        far = np.max(depths_in_view(cam, xyz[agreed]), initial=np.percentile(z, 99))
+        in_view = depths_in_view(cam, xyz[agreed])
+        far = np.max(in_view, initial=0.0 if len(in_view) >= min_points else np.percentile(z, 99))
         problems.append(Problem(
             ref=cam.name, sources=sources,
             depth_min=float(near / (1 + options.depth_margin)),

@@ -57,6 +57,24 @@ def test_the_far_bound_reaches_the_points_in_view_that_three_other_photos_agree_
     assert after.depth_min == before[image.name].depth_min  # the near bound stays on the view's own points
 
 
+def test_points_of_the_view_that_only_two_photos_matched_do_not_set_its_far_bound(reconstruction):
+    """Mismatches between two photos of a survey triangulate far below the ground (the zoo's aerial_grid:
+    at 9 times its depth in a corner view, whose depth map then held 43 % of its surface, 66 % without
+    them); once they exceed 1 % of the view's own points, its 99th percentile took them in."""
+    rec = pycolmap.Reconstruction(reconstruction)
+    before = {p.ref: p for p in select_problems(rec)}
+    image = next(im for im in rec.images.values() if im.name == "view_002.jpg")
+    cam = view_camera(image, rec.camera(image.camera_id))
+    own = [pid for pid, p in rec.points3D.items() if any(e.image_id == image.image_id for e in p.track.elements)]
+    pairs = [pid for pid in own if rec.points3D[pid].track.length() == 2]
+    assert len(pairs) > 0.01 * len(own)  # more than the 99th percentile leaves out
+    centre = -cam.R.T @ cam.t
+    for pid in pairs:  # each slid along view_002's ray to 10 times its depth: its pixel there stays
+        rec.points3D[pid].xyz = centre + 10 * (rec.points3D[pid].xyz - centre)
+    after = {p.ref: p for p in select_problems(rec)}[image.name]
+    assert after.depth_max == before[image.name].depth_max
+
+
 def test_sources_are_the_neighbours_on_the_path(reconstruction):
     # views move along a line: the best sources of view i are views i - 1 and i + 1
     problems = {p.ref: p for p in select_problems(reconstruction, MVSOptions(max_sources=2))}
