@@ -497,14 +497,10 @@ def remove_geometric_term(ref, dims, kinv, A, b, src_depth, M, c, geo_weight, ge
                 if not (views[y, x] >> s) & 1:
                     continue
                 n_views += 1
-                h00, h01, h02, h10, h11, h12, h20, h21, h22 = _homography(A, b, s, m0, m1, m2)
-                cz = h20 * px + h21 * py + h22
+                cu, cv, where = _centre_in_source(A, b, dims, s, m0, m1, m2, px, py)
                 error = geo_max
-                if cz > 1e-6:
-                    cu = (h00 * px + h01 * py + h02) / cz
-                    cv = (h10 * px + h11 * py + h12) / cz
-                    if cu >= 0.0 and cv >= 0.0 and cu < dims[s, 0] and cv < dims[s, 1]:
-                        error = min(_reprojection_error(src_depth, s, cu, cv, px, py, M, c), geo_max)
+                if where == _INSIDE:
+                    error = min(_reprojection_error(src_depth, s, cu, cv, px, py, M, c), geo_max)
                 term += geo_weight * error
             cost[y, x] = cost[y, x] - term / n_views if n_views else MAX_COST
 
@@ -539,17 +535,31 @@ def seen_cost(depth, normal, kinv, A, b, dims, views, cost, top_k, out):
                 if not (views[y, x] >> s) & 1:
                     continue
                 n_views += 1
-                h00, h01, h02, h10, h11, h12, h20, h21, h22 = _homography(A, b, s, m0, m1, m2)
-                cz = h20 * px + h21 * py + h22
-                if cz > 1e-6:  # (behind the camera costs MAX_COST, not UNSEEN_COST)
-                    cu = (h00 * px + h01 * py + h02) / cz
-                    cv = (h10 * px + h11 * py + h12) / cz
-                    unseen += not (cu >= 0.0 and cv >= 0.0 and cu < dims[s, 0] and cv < dims[s, 1])
+                # (behind the camera costs MAX_COST, not UNSEEN_COST)
+                unseen += _centre_in_source(A, b, dims, s, m0, m1, m2, px, py)[2] == _OUTSIDE
             k = min(top_k, n_views)
             counted = max(0, unseen - (n_views - k))
             if counted == 0:
                 continue
             out[y, x] = (k * cost[y, x] - counted * UNSEEN_COST) / (k - counted) if k > counted else MAX_COST
+
+
+_BEHIND, _OUTSIDE, _INSIDE = 0, 1, 2  # where a plane carries a pixel's centre in a source: _centre_in_source
+
+
+@njit(cache=True, fastmath=True)
+def _centre_in_source(A, b, dims, s, m0, m1, m2, px, py):
+    """(cu, cv, where): the point of source ``s`` to which the plane (m0, m1, m2) carries reference pixel
+    (px, py), and whether it lies _INSIDE the source's image, _OUTSIDE it, or the plane's point is
+    _BEHIND (or at) the source camera (cu, cv then 0)."""
+    h00, h01, h02, h10, h11, h12, h20, h21, h22 = _homography(A, b, s, m0, m1, m2)
+    cz = h20 * px + h21 * py + h22
+    if not cz > 1e-6:
+        return 0.0, 0.0, _BEHIND
+    cu = (h00 * px + h01 * py + h02) / cz
+    cv = (h10 * px + h11 * py + h12) / cz
+    inside = cu >= 0.0 and cv >= 0.0 and cu < dims[s, 0] and cv < dims[s, 1]
+    return cu, cv, _INSIDE if inside else _OUTSIDE
 
 
 @njit(cache=True, fastmath=True)
