@@ -121,9 +121,7 @@ def _map(mapper: str, database: Path, images: Path, cfg, seed: int, start=None) 
     import pycolmap
 
     pycolmap.set_random_seed(seed)
-    with read_only(database) as db:
-        initial = stored_camera_params(db)
-    with tempfile.TemporaryDirectory(prefix="recon-sfm-") as scratch, private_copy(database) as database:
+    with tempfile.TemporaryDirectory(prefix="recon-sfm-") as scratch, private_copy(database) as copy:
         start_path = ""
         if start is not None:
             start_path = str(Path(scratch) / "start")
@@ -138,12 +136,14 @@ def _map(mapper: str, database: Path, images: Path, cfg, seed: int, start=None) 
             opts.multiple_models = cfg.multiple_models
             opts.random_seed = seed
             opts.num_threads = _threads(cfg)
-            models = pycolmap.global_mapping(str(database), str(images), scratch, opts)
+            models = pycolmap.global_mapping(str(copy), str(images), scratch, opts)
         else:
-            models = pycolmap.incremental_mapping(str(database), str(images), scratch,
+            models = pycolmap.incremental_mapping(str(copy), str(images), scratch,
                                                   incremental_options(cfg, seed), input_path=start_path)
     ordered = sorted(models.values(), key=lambda r: (-r.num_reg_images(), -r.num_points3D()))
     if cfg.final_ba_iterations:
+        with read_only(database) as db:
+            initial = stored_camera_params(db)
         ordered = [final_bundle_adjustment(rec, cfg, initial) for rec in ordered]
     return ordered
 
