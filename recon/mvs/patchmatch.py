@@ -511,7 +511,7 @@ def seen_cost(depth, normal, kinv, A, b, dims, views, cost, top_k, out):
     terms of the sources its plane projects outside of (each :data:`UNSEEN_COST`): the matching cost
     over the sources that see the pixel, which :func:`filter_depth` tests. A pixel seen by one source
     alone (ground at the edge of a survey that two photos share) otherwise averages at least
-    2 * UNSEEN_COST / 3 over top_k = 3 sources, above any useful ``filter_max_cost``.
+    (top_k - 1) / top_k * UNSEEN_COST over its top_k sources, above a useful ``filter_max_cost``.
 
     Exact for masks of at most top_k sources (SELECT_VIEWS: the mean is over the whole mask); for a
     larger mask, the unseen sources are taken to be among its best top_k only where fewer than top_k

@@ -38,6 +38,10 @@ corner photo of a survey shares much of its ground with one other photo, more th
 points can be two-photo mismatches far below the ground: two of aerial_grid's views had ranges 7 and 9
 times their deepest true depth, and their depth maps held 43 % and 67 % of their surface (66 % and 81 %
 with these points left out).
+A view then reaches as far as its sources reach: its far bound is the largest of its own and its
+sources'. A view looking along far ground can miss sparse points its sources triangulated there
+outside its own frame, as at the edge of its image: 8 of far_field's 24 views at 640x480 had ranges
+ending short of their surface (one at 28 m against 45 m), and with this rule none did (docs/DECISIONS.md).
 
 ``keep`` gives views their sources of an earlier run (photos added to a workspace): a view keeps
 them while every one of them still qualifies as a source and its ``reselect_top`` best-scoring
@@ -214,7 +218,9 @@ def select_problems(reconstruction: pycolmap.Reconstruction, options: MVSOptions
             depth_min=float(near / (1 + options.depth_margin)),
             depth_max=float(far * (1 + options.depth_margin)),
             cameras={name: all_cameras[name] for name in (cam.name, *sources)}))
-    return problems
+    own_far = {problem.ref: problem.depth_max for problem in problems}  # each view reaches as far as its sources
+    return [replace(problem, depth_max=max([problem.depth_max, *(own_far.get(s, 0.0) for s in problem.sources)]))
+            for problem in problems]
 
 
 class _Occluders:
