@@ -12,7 +12,7 @@ from recon.mvs.options import MVSOptions
 
 WIDTH, HEIGHT = 96, 72
 OPTIONS = MVSOptions(iterations=4)
-THREE = dataclasses.replace(OPTIONS, top_k=3)  # the mean over three sources, where two of them look elsewhere
+THREE = dataclasses.replace(OPTIONS, top_k=3)  # the mean over three sources, one or two of which look elsewhere
 SKY = 0.75
 CENTRES = [(0.0, 0.0, 0.0), (0.3, 0.0, 0.0), (-0.3, 0.05, 0.0), (0.0, 0.25, 0.05)]
 
