@@ -13,8 +13,8 @@ class MVSOptions:
 
     max_image_size: int = opt(1536, "longest side of the images depth maps are computed at (px); larger ones are downscaled", ge=32)
     max_sources: int = opt(8, "most source views per reference view", ge=1, le=32)
-    top_k: int = opt(2, "the matching cost of a hypothesis is the mean over its K best source views; 2 rather than 3 "
-                        "finds surface that only two or three photos see (zoo, docs/DECISIONS.md)", ge=1, le=32)
+    top_k: int = opt(1, "the matching cost of a hypothesis is the mean over its K best source views; 1 (its best "
+                        "source) rather than 2 or 3 finds surface that only two or three photos see (zoo, docs/DECISIONS.md)", ge=1, le=32)
     min_triangulation_angle: float = opt(3.0, "source views whose shared points are seen under a smaller angle (deg) do not count", ge=0.0, le=45.0)
     max_scale_ratio: float = opt(2.0, "source views seeing the shared points at a resolution differing by more than this factor are skipped", ge=1.0)
     depth_margin: float = opt(0.25, "depth range: 1st percentile of the view's own sparse point depths / (1 + margin) to the farthest sparse point in its view * (1 + margin)", ge=0.0, le=4.0)
