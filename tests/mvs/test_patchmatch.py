@@ -243,6 +243,22 @@ def test_a_pixel_that_one_source_sees_can_pass_the_filter(plane):
     assert not wrong.depth[inner].any()
 
 
+def test_a_surface_that_one_source_sees_is_found_where_the_others_see_something_else(plane):
+    """A walk's corner: one source sees the reference's surface, the other two see other things
+    there. A hypothesis costs its best source's match (top_k 1), so the true plane wins; as a mean over
+    three sources it pays two uncorrelated windows, and planes that half-match them win instead."""
+    images, cams, depths, normal = plane
+    elsewhere, _, _, _ = _plane_scene(seed=5)
+    sources = [images[1], elsewhere[2], elsewhere[3]]
+    inner = (slice(12, -12), slice(24, -12))  # (the one source, to the right, misses the left columns)
+    found = {}
+    for name, options in (("best", OPTIONS), ("mean of three", THREE)):
+        state = pm.photometric_depth(images[0], sources, cams[0], cams[1:], (1.0, 4.0), options, seed=0)
+        found[name] = np.mean(np.abs(state.depth - depths[0])[inner] < 0.01 * depths[0][inner])
+    assert OPTIONS.top_k == 1
+    assert found["best"] > 0.95 and found["mean of three"] < 0.8
+
+
 def test_the_uniform_side_of_an_edge_gets_no_depth():
     """Pixels of a flat light grey region beside a textured one match on the texture alone (their
     bilateral window's variance comes from across the edge): given the edge's plane they pass the cost and the
