@@ -27,17 +27,17 @@ views triangulate it: on the zoo's far_field at 320x240 the 99th percentile of t
 left 48 % of the observable surface beyond the range, the farthest point in view 1 %. A far bound costs
 little: PatchMatch samples depths uniformly in inverse depth, and [1/far, 1/near] grew by 9 %
 (far_field) and 22 % (transient_car); the near bound, which sets that interval's scale, stays on the
-view's own points (a percentile: one stray near point would spread the samples). A point only two photos matched does
-not count: the zoo's aerial_grid held 30-40 such points in each view's frame at 11 to 17 times the
-ground's depth, and facade_walk some at 16 to 25 times its facade's. In ranges that deep the depth maps
-agreed on points far below aerial_grid's ground (to 120 units under a scene 116 across; 95 % of them
-within 11 once these points no longer count), and its mesh F@0.2 % rose .703 -> .747 without them
-(docs/DECISIONS.md). The view's own points count no differently: only where fewer than ``min_points``
-such points lie in its image does the 99th percentile of its own points' depths set the bound. Where a
-corner photo of a survey shares much of its ground with one other photo, more than 1 % of its own
-points can be two-photo mismatches far below the ground: two of aerial_grid's views had ranges 7 and 9
-times their deepest true depth, and their depth maps held 43 % and 67 % of their surface (66 % and 81 %
-with these points left out).
+view's own points (a percentile: one stray near point would spread the samples). A point only two photos
+matched does not count: the zoo's aerial_grid held 30-40 such points in each view's frame at 11 to
+17 times the ground's depth, and facade_walk some at 16 to 25 times its facade's. In ranges that deep
+the depth maps agreed on points far below aerial_grid's ground (to 120 units under a scene 116 across;
+95 % of them within 11 once these points no longer count), and its mesh F@0.2 % rose .703 -> .747
+without them (docs/DECISIONS.md). The view's own points count no differently: only where fewer than
+``min_points`` such points lie in its image does the 99th percentile of its own points' depths set the
+bound. Where a corner photo of a survey shares much of its ground with one other photo, more than 1 % of
+its own points can be two-photo mismatches far below the ground: two of aerial_grid's views had ranges 7
+and 9 times their deepest true depth, and their depth maps held 43 % and 67 % of their surface (66 % and
+81 % with these points left out).
 The near bound reaches ``near_reach`` (3) times nearer than the view's own points because SfM
 triangulates little of what stands close in front of the photos: seen from few of them, at wide angles,
 its features do not make tracks. On the zoo's walkaround a tree and a bin 2 m from the camera filled up
