@@ -12,6 +12,12 @@ def reconstruction(small_scene):
     return pycolmap.Reconstruction(small_scene / "dense" / "sparse")
 
 
+def _view(rec: pycolmap.Reconstruction, name: str):
+    """The image ``name`` of ``rec`` and its camera as :func:`select_problems` sees it."""
+    image = rec.find_image_with_name(name)
+    return image, view_camera(image, rec.camera(image.camera_id))
+
+
 def test_every_view_gets_sources_and_a_depth_range_holding_its_surface(small_scene, reconstruction):
     scene = load_scene(small_scene / "scene")
     problems = select_problems(reconstruction, MVSOptions(max_sources=3))
@@ -29,8 +35,7 @@ def test_the_far_bound_reaches_the_points_in_view_that_three_other_photos_agree_
     # far ground seen at a grazing angle: other views triangulate it, the view itself matches none of it
     rec = pycolmap.Reconstruction(reconstruction)
     before = {p.ref: p for p in select_problems(rec)}
-    image = next(im for im in rec.images.values() if im.name == "view_002.jpg")
-    cam = view_camera(image, rec.camera(image.camera_id))
+    image, cam = _view(rec, "view_002.jpg")
     far = 5 * before[image.name].depth_max
 
     def at(x_cam):  # the world point at camera coordinates x_cam of view_002
@@ -64,8 +69,7 @@ def test_points_of_the_view_that_only_two_photos_matched_do_not_set_its_far_boun
     them); once they exceed 1 % of the view's own points, its 99th percentile took them in."""
     rec = pycolmap.Reconstruction(reconstruction)
     before = {p.ref: p for p in select_problems(rec)}
-    image = next(im for im in rec.images.values() if im.name == "view_002.jpg")
-    cam = view_camera(image, rec.camera(image.camera_id))
+    image, cam = _view(rec, "view_002.jpg")
     own = [pid for pid, p in rec.points3D.items() if any(e.image_id == image.image_id for e in p.track.elements)]
     pairs = [pid for pid in own if rec.points3D[pid].track.length() == 2]
     assert len(pairs) > 0.01 * len(own)  # more than the 99th percentile leaves out
@@ -82,10 +86,8 @@ def test_a_view_reaches_as_far_as_its_sources_reach(reconstruction):
     surface, one at 28 m against 45 m); its range then ends where its sources' ranges end."""
     rec = pycolmap.Reconstruction(reconstruction)
     before = {p.ref: p for p in select_problems(rec)}
-    image = next(im for im in rec.images.values() if im.name == "view_002.jpg")
-    mine = view_camera(image, rec.camera(image.camera_id))
-    source = next(im for im in rec.images.values() if im.name == before[image.name].sources[0])
-    theirs = view_camera(source, rec.camera(source.camera_id))
+    image, mine = _view(rec, "view_002.jpg")
+    source, theirs = _view(rec, before[image.name].sources[0])
     far = 5 * before[image.name].depth_max
     # a point at the left or right edge of the source's image, at depth `far`, that view_002 does not see
     candidates = [theirs.R.T @ (far * np.linalg.inv(theirs.K) @ [u, theirs.height / 2, 1.0] - theirs.t)
@@ -108,8 +110,7 @@ def test_the_near_bound_reaches_foreground_that_no_sparse_point_lies_on(small_sc
     truth = load_scene(small_scene / "scene").depth("view_002.jpg")
     low = np.percentile(truth[truth > 0], 1)
     rec = pycolmap.Reconstruction(reconstruction)
-    image = next(im for im in rec.images.values() if im.name == "view_002.jpg")
-    mine = view_camera(image, rec.camera(image.camera_id))
+    image, mine = _view(rec, "view_002.jpg")
     for pid in [pid for pid, p in rec.points3D.items() if (mine.R @ p.xyz + mine.t)[2] < 2 * low]:
         rec.delete_point3D(pid)
     problem = next(p for p in select_problems(rec) if p.ref == image.name)
