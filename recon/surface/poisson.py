@@ -2,9 +2,16 @@
 
 Poisson closes every surface it builds: the open sides of a scene (sky, the far side of a facade) come
 back as smooth balloon surfaces far from any point. Three trims remove them: vertices of low point
-density (open3d reports the density of the octree node each vertex came from), faces outside the
-points' bounding box grown by a margin, and faces farther than a few octree cells (or than the
-points' own spacing, where they lie sparser) from any point.
+density, faces outside the points' bounding box grown by a margin, and faces farther than a few octree
+cells (or than the points' own spacing, where they lie sparser) from any point.
+
+open3d reports a vertex's density as the octree depth its nearby points support: one level less, points
+twice as far apart. A vertex is cut when its density is among the lowest ``density_quantile`` of the
+mesh's AND more than ``density_levels`` below the median vertex's. The quantile alone cuts its share of
+every mesh; where nothing is unsupported (a closed object masked from its table, or on a turntable) that
+share is true surface, and the held-out views saw holes through it. The levels alone (one below the
+median) cut too much of an open scene whose true surface is sparsely seen: walkaround's mesh F@0.2 %
+.829 -> .754.
 """
 
 from __future__ import annotations
@@ -104,7 +111,8 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | N
 
     keep_vertex = np.ones(len(vertices), bool)
     if options.density_quantile > 0:
-        keep_vertex &= density >= np.quantile(density, options.density_quantile)
+        keep_vertex &= density >= min(np.quantile(density, options.density_quantile),
+                                      np.median(density) - options.density_levels)
     lo, hi = points.min(0), points.max(0)
     margin = options.bbox_margin * (hi - lo).max()
     keep_vertex &= np.all((vertices >= lo - margin) & (vertices <= hi + margin), axis=1)
