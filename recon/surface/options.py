@@ -23,8 +23,8 @@ class MeshOptions:
     point_weight: float = opt(4.0, "Poisson screening weight: higher follows the points more closely", ge=0.0)
     deterministic: bool = opt(True, "single-threaded Poisson: the same mesh from the same points (multi-threaded, "
                                     "its densities differ in the last digits, so trimming cuts other faces)")
-    density_quantile: float = opt(0.05, "drop Poisson vertices whose point density is below this quantile (and below "
-                                        "mesh.density_levels)", ge=0.0, lt=1.0)
+    density_quantile: float = opt(0.05, "drop Poisson vertices whose point density is below this quantile and more "
+                                        "than mesh.density_levels below the median's (0: no density trim)", ge=0.0, lt=1.0)
     density_levels: float = opt(1.0, "a vertex of the low-density quantile is dropped only where its points lie sparser "
                                      "than the median vertex's by more than this many octree levels (each: twice the "
                                      "spacing); an evenly sampled object keeps its whole surface. 0: the quantile alone "

@@ -53,3 +53,10 @@ def load_arrays(info: SceneInfo) -> Scene:
     return Scene(info, read(info.images_dir, info.image_names), [cams[n] for n in info.image_names],
                  [info.depth(n) for n in info.image_names], read(info.holdout_images_dir, info.holdout_names),
                  [held[n] for n in info.holdout_names], trimesh.load(info.mesh_path, process=False))
+
+
+def sphere_points(n: int) -> np.ndarray:
+    """``n`` points spread evenly over the unit sphere (a Fibonacci lattice); each is its own normal."""
+    k = np.arange(n) + 0.5
+    polar, azimuth = np.arccos(1 - 2 * k / n), np.pi * (1 + 5**0.5) * k
+    return np.column_stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)])

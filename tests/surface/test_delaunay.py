@@ -4,6 +4,7 @@ cameras and the sphere are cut away."""
 
 import numpy as np
 import pytest
+from surface_scene import sphere_points
 
 from recon.mvs.views import ViewCamera
 from recon.surface.delaunay import delaunay_mesh, lines_of_sight, thin
@@ -46,14 +47,8 @@ def sphere_views():
     return views
 
 
-def _sphere_points(n: int) -> np.ndarray:
-    k = np.arange(n) + 0.5
-    polar, azimuth = np.arccos(1 - 2 * k / n), np.pi * (1 + 5**0.5) * k
-    return np.column_stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)])
-
-
 def test_every_point_has_the_lines_of_sight_of_the_views_that_see_it(sphere_views):
-    points = _sphere_points(2000)
+    points = sphere_points(2000)
     ray_point, ray_view, centres = lines_of_sight(points, sphere_views, agree=0.01)
     assert np.allclose(np.linalg.norm(centres, axis=1), 4.0)
     # a view sees a point of the sphere when the point faces it (and lies in its frame: all do here);
@@ -79,7 +74,7 @@ def test_the_surface_passes_through_the_points_and_cuts_strays_away(sphere_views
     col, row = (xyz[:, :2] / xyz[:, 2:] * FOCAL + [WIDTH / 2, HEIGHT / 2]).astype(int).T
     seen[row, col] = xyz[:, 2]
     views = [(cam, seen), *sphere_views[1:]]
-    points = np.vstack([_sphere_points(6000), strays])
+    points = np.vstack([sphere_points(6000), strays])
     assert np.isin(np.arange(6000, 6040), lines_of_sight(points, views, 0.01)[0]).sum() >= 30  # (some share a pixel)
     mesh = delaunay_mesh(points, None, views, MeshOptions(depth=7))  # cells of 2 / 256
     radius = np.linalg.norm(mesh.vertices, axis=1)

@@ -3,6 +3,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import trimesh
+from surface_scene import sphere_points
 
 from recon.eval.surface import surface_metrics
 from recon.surface.cleanup import clean_mesh
@@ -43,17 +44,10 @@ def test_tsdf_is_accurate(small_scene, noise):
     assert mesh.visual.kind == "vertex"
 
 
-def _unit_sphere(n: int) -> np.ndarray:
-    """``n`` points spread evenly over the unit sphere (a Fibonacci lattice); each is its own normal."""
-    k = np.arange(n) + 0.5
-    polar, azimuth = np.arccos(1 - 2 * k / n), np.pi * (1 + 5**0.5) * k
-    return np.column_stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)])
-
-
 def test_an_evenly_sampled_closed_surface_loses_nothing_to_the_density_trim():
     """The lowest 5 % of an evenly sampled sphere's vertex densities are no sparser than the rest: the
     quantile alone cut them out as holes."""
-    pts = _unit_sphere(20_000)
+    pts = sphere_points(20_000)
     kept = poisson_mesh(pts, pts, options=MeshOptions(depth=7))
     assert kept.area == pytest.approx(4 * np.pi, rel=0.002)
     assert len(trimesh.grouping.group_rows(kept.edges_sorted, require_count=1)) == 0  # no boundary: no hole
@@ -64,7 +58,7 @@ def test_an_evenly_sampled_closed_surface_loses_nothing_to_the_density_trim():
 def test_the_density_trim_still_cuts_what_no_point_supports():
     """A hemisphere: Poisson closes it with a balloon over the open side, whose vertices lie far sparser
     than the median; with the other trims off, the density trim alone takes it, and only it."""
-    pts = _unit_sphere(20_000)
+    pts = sphere_points(20_000)
     pts = pts[pts[:, 2] > 0]
     loose = MeshOptions(depth=7, trim_distance=0, bbox_margin=1)
     untrimmed = poisson_mesh(pts, pts, options=replace(loose, density_quantile=0))
@@ -77,7 +71,7 @@ def test_the_density_trim_still_cuts_what_no_point_supports():
 def test_points_sparser_than_the_poisson_cells_leave_no_pinholes():
     """A unit sphere sampled every ~0.08 and meshed at depth 9 (cells of 0.004): the distance trim at 4
     cells alone would cut out every face between the points; it never cuts closer than their spacing."""
-    pts = _unit_sphere(2000)
+    pts = sphere_points(2000)
     mesh = poisson_mesh(pts, pts, options=MeshOptions(depth=9, density_quantile=0))
     assert mesh.area == pytest.approx(4 * np.pi, rel=0.03)
     assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - 1).max() < 0.02
