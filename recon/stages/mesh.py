@@ -58,7 +58,7 @@ def _fused_cloud(ctx: StageContext):
 @register
 class Mesh(Stage):
     name = "mesh"
-    version = 6
+    version = 7
     Config = MeshConfig
     requires = (DenseScene, DepthMaps, FusedCloud)
     produces = SurfaceMesh
@@ -67,13 +67,14 @@ class Mesh(Stage):
     def run(self, ctx: StageContext, cfg: MeshConfig) -> dict:
         from recon.surface.cleanup import clean_mesh, keep_faces
 
+        points = None  # what the surface was built from, where it was built from the fused cloud
         if cfg.method == "poisson":
-            mesh = self._poisson(ctx, cfg)
+            mesh, points = self._poisson(ctx, cfg)
         elif cfg.method == "delaunay":
-            mesh = self._delaunay(ctx, cfg)
+            mesh, points = self._delaunay(ctx, cfg)
         else:
             mesh = self._tsdf(ctx, cfg)
-        mesh = clean_mesh(mesh, cfg)
+        mesh = clean_mesh(mesh, cfg, points)
         carved = 0
         if cfg.free_space:
             seen_through = _in_free_space(ctx, mesh)
@@ -98,7 +99,8 @@ class Mesh(Stage):
         if len(cloud.points) < 100 or not cloud.has_normals():
             raise StageError("mesh: dense/fused.ply has too few oriented points for Poisson meshing; "
                              "check the fusion stage, or use mesh.method: tsdf")
-        return poisson_mesh(np.asarray(cloud.points), np.asarray(cloud.normals), colors, cfg)
+        points = np.asarray(cloud.points)
+        return poisson_mesh(points, np.asarray(cloud.normals), colors, cfg), points
 
     def _delaunay(self, ctx: StageContext, cfg: MeshConfig):
         from recon.surface.delaunay import delaunay_mesh
@@ -107,8 +109,9 @@ class Mesh(Stage):
         if len(cloud.points) < 100:
             raise StageError("mesh: dense/fused.ply has too few points for Delaunay meshing; check the fusion stage")
         views = ctx.input(DepthMaps).of_views(ctx.input(DenseScene).views())
+        points = np.asarray(cloud.points)
         try:
-            return delaunay_mesh(np.asarray(cloud.points), colors, views, cfg)
+            return delaunay_mesh(points, colors, views, cfg), points
         except ValueError as e:
             raise StageError(f"mesh: no Delaunay surface from dense/fused.ply: {e}; use mesh.method: poisson") from e
 

@@ -36,7 +36,11 @@ class MeshOptions:
     sdf_trunc_voxels: float = opt(4.0, "TSDF truncation distance in voxels", gt=1.0)
     min_views: float = opt(1.0, "TSDF: keep surface seen by at least this many depth maps (integration weight)", ge=0.0)
     depth_max_fraction: float = opt(0.0, "ignore depths beyond this fraction of the scene extent, 0: keep all", ge=0.0)
-    min_component_fraction: float = opt(0.01, "drop connected pieces with less than this fraction of the total area", ge=0.0, lt=1.0)
+    min_component_fraction: float = opt(0.001, "drop connected pieces with less than this fraction of the total area", ge=0.0, lt=1.0)
+    min_component_support: float = opt(0.15, "also drop pieces, all but the largest, with fewer fused points per unit area "
+                                             "than this fraction of the whole mesh's: Poisson's bridges over stray points "
+                                             "(zoo: stray pieces 0.01-0.12, true ones mostly 0.27-2.4; docs/DECISIONS.md). "
+                                             "0: off; tsdf has no fused points", ge=0.0)
     target_faces: int = opt(250000, "decimate (quadric error) to at most this many faces (0: no decimation)", ge=0)
 
 

@@ -88,3 +88,27 @@ def test_clean_mesh_pipeline():
     out = clean_mesh(mesh, MeshOptions(min_component_fraction=0.01, target_faces=0))
     assert len(out.faces) == len(sphere.faces)
     assert out.is_watertight
+
+
+def _on_sphere(rng, n, centre, radius):
+    d = rng.normal(size=(n, 3))
+    return centre + radius * d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_a_piece_without_points_goes_and_a_supported_one_of_its_size_stays():
+    """Two pieces apart from the main surface, each 9 % of its area: one carries points as densely as the
+    main surface (a pole, a distant wall), the other a twentieth as densely (Poisson bridging stray points)."""
+    rng = np.random.default_rng(0)
+    pieces = [(np.zeros(3), 1.0), (np.array([3.0, 0, 0]), 0.3), (np.array([-3.0, 0, 0]), 0.3)]
+    mesh = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=3, radius=r).apply_translation(c)
+                                     for c, r in pieces])
+    points = np.concatenate([_on_sphere(rng, 4000, *pieces[0]), _on_sphere(rng, 360, *pieces[1]),
+                             _on_sphere(rng, 18, *pieces[2])])
+    assert len(remove_small_components(mesh, 0.01, points, 0.0).faces) == len(mesh.faces)
+    out = remove_small_components(mesh, 0.01, points, 0.15)
+    kept = out.triangles_center
+    assert len(out.faces) == 2 * len(mesh.faces) // 3
+    assert (kept[:, 0] > -2).all() and (kept[:, 0] > 2).any()
+    # the largest piece stays whatever its support: with points on the third piece only, the second goes
+    alone = remove_small_components(mesh, 0.01, points[4360:], 0.15).triangles_center
+    assert (np.abs(alone[:, 0]) < 1.1).any() and (alone[:, 0] < -2).any() and not (alone[:, 0] > 2).any()
