@@ -127,6 +127,13 @@ def test_textured_exports_load_with_their_texture(dense_workspace):
     assert colored.visual.vertex_colors[:, :3].std() > 10
 
 
+def test_the_mesh_cleanup_weighs_its_pieces_by_the_fused_points(dense_workspace):
+    """The mesh stage hands the cleanup the fused points it meshed, so pieces with few of them can go
+    (mesh.min_component_support; the rule itself: tests/surface/test_cleanup.py)."""
+    log = (dense_workspace / ".recon" / "recon.log").read_text()
+    assert "times the mesh's points per area dropped" in log
+
+
 def test_delaunay_mesh_lies_on_the_surface_and_is_textured(dense_workspace, small_scene, tmp_path):
     """mesh.method: delaunay through the pipeline: the graph-cut surface of the fused points, textured."""
     import shutil
