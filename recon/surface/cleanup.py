@@ -103,9 +103,10 @@ def remove_small_components(mesh: trimesh.Trimesh, min_fraction: float, points: 
     centre is nearest to it.
 
     Why support and not area alone: Poisson leaves pieces apart from the main surface both where true
-    surface stands apart (a pole, a distant wall) and where it bridged stray points. On the zoo, pieces
-    of true surface carry 0.27-2.4 times the mesh's points per area, stray ones 0.01-0.12 (far_field:
-    four pieces of 1.1-3.2 % of the area, none of it within 0.2 % of the extent of the true surface)."""
+    surface stands apart (a pole, a distant wall) and where it bridged stray points. On the zoo, the
+    stray pieces carry 0.01-0.12 times the mesh's points per area, the true ones mostly 0.27-2.4 (one of
+    walkaround's, 1.7 % of its area at 0.06, goes too). far_field's four stray pieces, 1.1-3.2 % of the
+    area each, which an area rule keeps, lie wholly off the surface (docs/DECISIONS.md)."""
     if len(mesh.faces) == 0 or (min_fraction <= 0 and (points is None or min_support <= 0)):
         return mesh.copy()
     adj = mesh.face_adjacency
