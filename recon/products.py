@@ -300,15 +300,24 @@ class DepthMaps(Product):
 
 class FusedCloud(Product):
     """fusion: the fused point cloud with normals and colours; with ``fusion.keep_visibility``, COLMAP's
-    record of the views that saw each point (``fused.ply.vis``, which its Delaunay mesher reads)."""
+    record of the views that saw each point (``fused.ply.vis``, which its Delaunay mesher reads); with
+    ``fusion.mesh_reproj_error``, the cloud the mesh stage meshes (``meshing.ply``)."""
 
     required = ("fused.ply",)
     publish = {"fused.ply": "dense/fused.ply", "fused.ply.vis": "dense/fused.ply.vis"}
-    describe = ("fused.ply", "fused.ply.vis")
+    describe = ("fused.ply", "fused.ply.vis", "meshing.ply")
 
     @property
     def path(self) -> Path:
         return self.root / "fused.ply"
+
+    @property
+    def meshing(self) -> Path:
+        return self.root / "meshing.ply"
+
+    def for_meshing(self) -> Path:
+        """The cloud to mesh: ``meshing.ply`` where fusion made one, else ``fused.ply``."""
+        return self.meshing if self.meshing.exists() else self.path
 
     @property
     def visibility(self) -> Path:

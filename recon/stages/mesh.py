@@ -47,10 +47,10 @@ def _in_free_space(ctx: StageContext, mesh) -> np.ndarray:
 
 
 def _fused_cloud(ctx: StageContext):
-    """The fused cloud (open3d) and its colours (N x 3 uint8; None without)."""
+    """The fused cloud to mesh (open3d; fusion.mesh_reproj_error) and its colours (N x 3 uint8; None without)."""
     from recon._open3d import open3d
 
-    cloud = open3d().io.read_point_cloud(str(ctx.input(FusedCloud).path))
+    cloud = open3d().io.read_point_cloud(str(ctx.input(FusedCloud).for_meshing()))
     colors = (np.asarray(cloud.colors) * 255).round().astype(np.uint8) if cloud.has_colors() else None
     return cloud, colors
 

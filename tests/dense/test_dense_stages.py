@@ -134,6 +134,18 @@ def test_the_mesh_cleanup_weighs_its_pieces_by_the_fused_points(dense_workspace)
     assert "times the mesh's points per area dropped" in log
 
 
+def test_the_mesh_is_built_from_a_cloud_fused_at_its_own_reprojection_error(dense_workspace):
+    """fusion.max_reproj_error 0.5 px gives dense/fused.ply; fusion.mesh_reproj_error 1 px the cloud that the
+    mesh stage meshes, whose points each merge more pixels: fewer of them."""
+    from recon.mvs.fused_ply import vertex_count
+
+    delivered = vertex_count(dense_workspace / "dense" / "fused.ply")
+    meshed = vertex_count(next(dense_workspace.glob(".recon/cache/fusion/*/meshing.ply")))
+    assert delivered > 1.3 * meshed > 0
+    log = (dense_workspace / ".recon" / "recon.log").read_text()
+    assert f"faces from {meshed} points" in log and f"faces from {delivered} points" not in log
+
+
 def test_delaunay_mesh_lies_on_the_surface_and_is_textured(dense_workspace, small_scene, tmp_path):
     """mesh.method: delaunay through the pipeline: the graph-cut surface of the fused points, textured."""
     import shutil
