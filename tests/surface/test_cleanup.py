@@ -1,5 +1,6 @@
 import numpy as np
 import trimesh
+from surface_scene import sphere_points
 
 from recon.surface.cleanup import (
     clean_mesh,
@@ -90,20 +91,13 @@ def test_clean_mesh_pipeline():
     assert out.is_watertight
 
 
-def _on_sphere(rng, n, centre, radius):
-    d = rng.normal(size=(n, 3))
-    return centre + radius * d / np.linalg.norm(d, axis=1, keepdims=True)
-
-
 def test_a_piece_without_points_goes_and_a_supported_one_of_its_size_stays():
     """Two pieces apart from the main surface, each 9 % of its area: one carries points as densely as the
     main surface (a pole, a distant wall), the other a twentieth as densely (Poisson bridging stray points)."""
-    rng = np.random.default_rng(0)
     pieces = [(np.zeros(3), 1.0), (np.array([3.0, 0, 0]), 0.3), (np.array([-3.0, 0, 0]), 0.3)]
     mesh = trimesh.util.concatenate([trimesh.creation.icosphere(subdivisions=3, radius=r).apply_translation(c)
                                      for c, r in pieces])
-    points = np.concatenate([_on_sphere(rng, 4000, *pieces[0]), _on_sphere(rng, 360, *pieces[1]),
-                             _on_sphere(rng, 18, *pieces[2])])
+    points = np.concatenate([c + r * sphere_points(n) for (c, r), n in zip(pieces, (4000, 360, 18), strict=True)])
     assert len(remove_small_components(mesh, 0.01, points, 0.0).faces) == len(mesh.faces)
     out = remove_small_components(mesh, 0.01, points, 0.15)
     kept = out.triangles_center
