@@ -18,6 +18,9 @@ from recon.surface.options import MeshOptions
 @dataclass(frozen=True)
 class MeshConfig(MeshOptions):
     tsdf_max_views: int = opt(0, "tsdf: integrate at most this many depth maps, evenly spread (0 = all)", ge=0)
+    drop_unseen: bool = opt(True, "drop faces no registered view sees (hidden from, outside of, or turned away from "
+                                  "every view), but not those next to a seen face: Poisson's closures and the "
+                                  "extensions no photo shows (recon.surface.unseen; zoo: docs/DECISIONS.md)")
     free_space: bool = opt(False, "drop faces that more views see through (their depth maps hold a surface behind "
                                   "the face) than agree with: surface Poisson or TSDF put where the views saw none. "
                                   "Zoo: mesh F@0.2 % up on 8 of 15 scenes (fence_poles .930 -> .945), none down, but "
@@ -47,18 +50,22 @@ def _in_free_space(ctx: StageContext, mesh) -> np.ndarray:
 
 
 def _fused_cloud(ctx: StageContext):
-    """The fused cloud to mesh (open3d; fusion.mesh_reproj_error) and its colours (N x 3 uint8; None without)."""
+    """The fused cloud to mesh (open3d; fusion.mesh_reproj_error), its colours (N x 3 uint8; None without)
+    and how error messages name it."""
     from recon._open3d import open3d
 
-    cloud = open3d().io.read_point_cloud(str(ctx.input(FusedCloud).for_meshing()))
+    fused = ctx.input(FusedCloud)
+    path = fused.for_meshing()
+    cloud = open3d().io.read_point_cloud(str(path))
     colors = (np.asarray(cloud.colors) * 255).round().astype(np.uint8) if cloud.has_colors() else None
-    return cloud, colors
+    named = "dense/fused.ply" if path == fused.path else f"fusion's meshing.ply ({path})"
+    return cloud, colors, named
 
 
 @register
 class Mesh(Stage):
     name = "mesh"
-    version = 7
+    version = 8
     Config = MeshConfig
     requires = (DenseScene, DepthMaps, FusedCloud)
     produces = SurfaceMesh
@@ -66,6 +73,7 @@ class Mesh(Stage):
 
     def run(self, ctx: StageContext, cfg: MeshConfig) -> dict:
         from recon.surface.cleanup import clean_mesh, keep_faces
+        from recon.surface.unseen import drop_unseen_faces
 
         points = None  # what the surface was built from, where it was built from the fused cloud
         if cfg.method == "poisson":
@@ -75,6 +83,10 @@ class Mesh(Stage):
         else:
             mesh = self._tsdf(ctx, cfg)
         mesh = clean_mesh(mesh, cfg, points)
+        unseen = 0
+        if cfg.drop_unseen:
+            mesh, unseen = drop_unseen_faces(mesh, ctx.input(DenseScene).views())
+            ctx.log.info("mesh: %d faces dropped: no view sees them or their neighbours", unseen)
         carved = 0
         if cfg.free_space:
             seen_through = _in_free_space(ctx, mesh)
@@ -86,18 +98,19 @@ class Mesh(Stage):
             ctx.log.info("mesh: %d faces over masked pixels dropped", dropped)
         if len(mesh.faces) == 0:
             raise StageError(f"mesh: the {cfg.method} surface is empty after trimming; lower "
-                             "mesh.density_quantile or check dense/fused.ply")
+                             "mesh.density_quantile or check the fusion stage's cloud")
         write_bytes(ctx.output.path, mesh.export(file_type="ply"))
         return {"method": cfg.method, "vertices": len(mesh.vertices), "faces": len(mesh.faces),
-                "watertight": bool(mesh.is_watertight), "free_space_faces_dropped": carved,
+                "watertight": bool(mesh.is_watertight), "unseen_faces_dropped": unseen,
+                "free_space_faces_dropped": carved,
                 "masked_faces_dropped": masked[1] if masked else 0}
 
     def _poisson(self, ctx: StageContext, cfg: MeshConfig):
         from recon.surface.poisson import poisson_mesh
 
-        cloud, colors = _fused_cloud(ctx)
+        cloud, colors, named = _fused_cloud(ctx)
         if len(cloud.points) < 100 or not cloud.has_normals():
-            raise StageError("mesh: dense/fused.ply has too few oriented points for Poisson meshing; "
+            raise StageError(f"mesh: {named} has too few oriented points for Poisson meshing; "
                              "check the fusion stage, or use mesh.method: tsdf")
         points = np.asarray(cloud.points)
         return poisson_mesh(points, np.asarray(cloud.normals), colors, cfg), points
@@ -105,15 +118,15 @@ class Mesh(Stage):
     def _delaunay(self, ctx: StageContext, cfg: MeshConfig):
         from recon.surface.delaunay import delaunay_mesh
 
-        cloud, colors = _fused_cloud(ctx)
+        cloud, colors, named = _fused_cloud(ctx)
         if len(cloud.points) < 100:
-            raise StageError("mesh: dense/fused.ply has too few points for Delaunay meshing; check the fusion stage")
+            raise StageError(f"mesh: {named} has too few points for Delaunay meshing; check the fusion stage")
         views = ctx.input(DepthMaps).of_views(ctx.input(DenseScene).views())
         points = np.asarray(cloud.points)
         try:
             return delaunay_mesh(points, colors, views, cfg), points
         except ValueError as e:
-            raise StageError(f"mesh: no Delaunay surface from dense/fused.ply: {e}; use mesh.method: poisson") from e
+            raise StageError(f"mesh: no Delaunay surface from {named}: {e}; use mesh.method: poisson") from e
 
     def _tsdf(self, ctx: StageContext, cfg: MeshConfig):
         import cv2

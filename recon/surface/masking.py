@@ -19,14 +19,11 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from recon.geometry.transforms import project
 from recon.imaging.masks import mask_at
-from recon.mvs.views import ViewCamera, scaled_to
+from recon.mvs.views import ViewCamera
 from recon.surface.cleanup import keep_faces
-from recon.surface.raycast import render_ids, scene_of
+from recon.surface.raycast import points_in_view, scene_of
 
-#: views are ray cast at most this size (longest side, px): enough to decide visibility
-RENDER_SIZE = 800
 #: a face centre counts as seen when it lies at most this far (relative) behind the view's first hit
 DEPTH_TOLERANCE = 1e-3
 #: a face centre on a masked pixel at most this far (px at the ray-cast size) from the subject is kept
@@ -44,18 +41,10 @@ def masked_faces(vertices: np.ndarray, faces: np.ndarray, views: list[ViewCamera
         mask = masks.get(view.name)
         if mask is None:
             continue
-        scale = min(1.0, RENDER_SIZE / max(view.width, view.height))
-        width, height = max(1, round(view.width * scale)), max(1, round(view.height * scale))
-        cam = scaled_to(view, width, height)
-        depth = render_ids(scene, cam, width, height)["depth"]
-        uv, z = project(cam.K, cam.R, cam.t, centres)
-        front = z > 0
-        cols = np.floor(np.where(front, uv[:, 0], -1)).astype(np.int64)
-        rows = np.floor(np.where(front, uv[:, 1], -1)).astype(np.int64)
-        inside = front & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
-        idx = np.flatnonzero(inside)
-        idx = idx[z[idx] <= depth[rows[idx], cols[idx]] * (1 + DEPTH_TOLERANCE)]  # the faces it sees
-        bad[idx[~_grown(mask_at(mask, width, height))[rows[idx], cols[idx]]]] = True
+        at = points_in_view(scene, view, centres)
+        idx = np.flatnonzero(at["inside"] & (at["z"] <= at["first"] * (1 + DEPTH_TOLERANCE)))  # the faces it sees
+        subject = _grown(mask_at(mask, at["width"], at["height"]))
+        bad[idx[~subject[at["row"][idx], at["col"][idx]]]] = True
     return bad
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from recon._open3d import open3d
-from recon.geometry.transforms import apply_matrix, camera_center
+from recon.geometry.transforms import apply_matrix, camera_center, project
 
 
 def scene_of(vertices: np.ndarray, faces: np.ndarray):
@@ -47,3 +47,28 @@ def render_ids(scene, cam, width: int, height: int) -> dict[str, np.ndarray]:
     o, d = pixel_rays(cam, width, height)
     hit = cast(scene, o, d)
     return {"depth": hit["t"], "face": hit["face"], "bary": hit["bary"]}
+
+
+#: views are ray cast at most this size (longest side, px) to decide what they see
+VISIBILITY_SIZE = 800
+
+
+def points_in_view(scene, view, points: np.ndarray) -> dict[str, np.ndarray]:
+    """Where each of ``points`` (N, 3) lies in ``view`` (a camera with K, R, t, width, height), ray cast
+    at most ``VISIBILITY_SIZE`` px: ``inside`` (in front of the camera, within the frame), ``row`` and
+    ``col`` (pixel at the cast size; valid where inside), ``z`` (the point's depth) and ``first`` (the
+    depth of the view's first hit at that pixel: the mesh's nearest surface there; inf where empty)."""
+    from recon.mvs.views import scaled_to
+
+    scale = min(1.0, VISIBILITY_SIZE / max(view.width, view.height))
+    width, height = max(1, round(view.width * scale)), max(1, round(view.height * scale))
+    cam = scaled_to(view, width, height)
+    depth = render_ids(scene, cam, width, height)["depth"]
+    uv, z = project(cam.K, cam.R, cam.t, points)
+    front = z > 0
+    cols = np.floor(np.where(front, uv[:, 0], -1)).astype(np.int64)
+    rows = np.floor(np.where(front, uv[:, 1], -1)).astype(np.int64)
+    inside = front & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
+    rows, cols = np.where(inside, rows, 0), np.where(inside, cols, 0)
+    return {"inside": inside, "row": rows, "col": cols, "z": z, "first": depth[rows, cols],
+            "width": width, "height": height}
