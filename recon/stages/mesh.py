@@ -98,7 +98,7 @@ class Mesh(Stage):
             ctx.log.info("mesh: %d faces over masked pixels dropped", dropped)
         if len(mesh.faces) == 0:
             raise StageError(f"mesh: the {cfg.method} surface is empty after trimming; lower "
-                             "mesh.density_quantile or check the fusion stage's cloud")
+                             "mesh.density_quantile, set mesh.drop_unseen: false, or check the fusion stage's cloud")
         write_bytes(ctx.output.path, mesh.export(file_type="ply"))
         return {"method": cfg.method, "vertices": len(mesh.vertices), "faces": len(mesh.faces),
                 "watertight": bool(mesh.is_watertight), "unseen_faces_dropped": unseen,
