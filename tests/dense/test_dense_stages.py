@@ -134,6 +134,15 @@ def test_the_mesh_cleanup_weighs_its_pieces_by_the_fused_points(dense_workspace)
     assert "times the mesh's points per area dropped" in log
 
 
+def test_the_mesh_stage_drops_what_no_view_sees_or_measures(dense_workspace):
+    """mesh.drop_unseen runs in the pipeline, with the depth maps (the rule itself: tests/surface/test_unseen.py)."""
+    import re
+
+    log = (dense_workspace / ".recon" / "recon.log").read_text()
+    assert re.search(r"mesh: \d+ faces dropped: no view sees them or their neighbours; \d+ more: 3 or more views "
+                     r"see them and none measures them", log)
+
+
 def test_the_mesh_is_built_from_a_cloud_fused_at_its_own_reprojection_error(dense_workspace):
     """fusion.max_reproj_error 0.5 px gives dense/fused.ply; fusion.mesh_reproj_error 1 px the cloud that the
     mesh stage meshes, whose points each merge more pixels: fewer of them."""
