@@ -43,14 +43,18 @@ def _drop_masked(ctx: StageContext, mesh):
     return drop_masked_faces(mesh, views, {v.name: m for v in views if (m := dense.mask(v.name)) is not None})
 
 
+def _depth_maps(ctx: StageContext):
+    """(view, its final depth map) for each registered view that has one, read one at a time."""
+    return ctx.input(DepthMaps).of_views(ctx.input(DenseScene).views())
+
+
 def _in_free_space(ctx: StageContext, mesh) -> np.ndarray:
     """Boolean per face: more views see through its centre than agree with it (:mod:`recon.mvs.free_space`).
     Poisson closes and extends the surface where the fused points stop; the depth maps tell where the
     views saw nothing there."""
     from recon.mvs.free_space import AGREE, MARGIN, in_free_space
 
-    views = ctx.input(DepthMaps).of_views(ctx.input(DenseScene).views())
-    return in_free_space(np.asarray(mesh.triangles_center), views, AGREE, MARGIN)
+    return in_free_space(np.asarray(mesh.triangles_center), _depth_maps(ctx), AGREE, MARGIN)
 
 
 def _fused_cloud(ctx: StageContext):
@@ -89,7 +93,8 @@ class Mesh(Stage):
         mesh = clean_mesh(mesh, cfg, points)
         unseen = unmeasured = 0
         if cfg.drop_unseen:
-            views = ctx.input(DepthMaps).of_views(ctx.input(DenseScene).views())
+            # without the unmeasured rule, only the cameras count: no depth map is read
+            views = _depth_maps(ctx) if cfg.unmeasured_views else [(v, None) for v in ctx.input(DenseScene).views()]
             mesh, unseen, unmeasured = drop_unseen_faces(mesh, views, cfg.unmeasured_views)
             ctx.log.info("mesh: %d faces dropped: no view sees them or their neighbours; %d more: %d or more "
                          "views see them and none measures them", unseen, unmeasured, cfg.unmeasured_views)
@@ -128,10 +133,9 @@ class Mesh(Stage):
         cloud, colors, named = _fused_cloud(ctx)
         if len(cloud.points) < 100:
             raise StageError(f"mesh: {named} has too few points for Delaunay meshing; check the fusion stage")
-        views = ctx.input(DepthMaps).of_views(ctx.input(DenseScene).views())
         points = np.asarray(cloud.points)
         try:
-            return delaunay_mesh(points, colors, views, cfg), points
+            return delaunay_mesh(points, colors, _depth_maps(ctx), cfg), points
         except ValueError as e:
             raise StageError(f"mesh: no Delaunay surface from {named}: {e}; use mesh.method: poisson") from e
 

@@ -95,6 +95,14 @@ def split_non_manifold_vertices(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return out
 
 
+def face_graph(mesh: trimesh.Trimesh) -> sp.csr_matrix:
+    """The faces' adjacency (F x F, symmetric): faces that share an edge."""
+    pairs = np.asarray(mesh.face_adjacency).reshape(-1, 2)
+    n = len(mesh.faces)
+    graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return (graph + graph.T).tocsr()
+
+
 def remove_small_components(mesh: trimesh.Trimesh, min_fraction: float, points: np.ndarray | None = None,
                             min_support: float = 0.0) -> trimesh.Trimesh:
     """Drop connected pieces (joined through shared edges) with less than ``min_fraction`` of the area and,
@@ -109,9 +117,7 @@ def remove_small_components(mesh: trimesh.Trimesh, min_fraction: float, points: 
     area each, which an area rule keeps, lie wholly off the surface (docs/DECISIONS.md)."""
     if len(mesh.faces) == 0 or (min_fraction <= 0 and (points is None or min_support <= 0)):
         return mesh.copy()
-    adj = mesh.face_adjacency
-    graph = sp.coo_matrix((np.ones(len(adj)), (adj[:, 0], adj[:, 1])), shape=(len(mesh.faces),) * 2)
-    n, label = connected_components(graph, directed=False)
+    n, label = connected_components(face_graph(mesh), directed=False)
     area = np.bincount(label, weights=mesh.area_faces, minlength=n)
     keep = area >= min_fraction * area.sum()
     if points is not None and min_support > 0 and len(points):

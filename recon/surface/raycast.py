@@ -53,11 +53,12 @@ def render_ids(scene, cam, width: int, height: int) -> dict[str, np.ndarray]:
 VISIBILITY_SIZE = 800
 
 
-def points_in_view(scene, view, points: np.ndarray) -> dict[str, np.ndarray]:
+def points_in_view(scene, view, points: np.ndarray) -> dict:
     """Where each of ``points`` (N, 3) lies in ``view`` (a camera with K, R, t, width, height), ray cast
     at most ``VISIBILITY_SIZE`` px: ``inside`` (in front of the camera, within the frame), ``row`` and
     ``col`` (pixel at the cast size; valid where inside), ``z`` (the point's depth) and ``first`` (the
-    depth of the view's first hit at that pixel: the mesh's nearest surface there; inf where empty)."""
+    depth of the view's first hit at that pixel: the mesh's nearest surface there; inf where empty): arrays
+    (N,); and ``width`` and ``height``, the cast size."""
     from recon.mvs.views import scaled_to
 
     scale = min(1.0, VISIBILITY_SIZE / max(view.width, view.height))

@@ -29,12 +29,11 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 import numpy as np
-import scipy.sparse as sp
 import trimesh
 
 from recon.geometry.transforms import camera_center
 from recon.mvs.views import ViewCamera
-from recon.surface.cleanup import keep_faces
+from recon.surface.cleanup import face_graph, keep_faces
 from recon.surface.raycast import points_in_view, scene_of
 
 #: a face centre at most this far (relative) behind a view's first hit counts as seen by the view
@@ -98,10 +97,7 @@ def drop_unseen_faces(mesh: trimesh.Trimesh, views: Iterable[tuple[ViewCamera, n
         return mesh, 0, 0
     seeing, measuring, enclosing = face_views(np.asarray(mesh.vertices, np.float64), faces, views)
     seen = seeing > 0
-    pairs = np.asarray(mesh.face_adjacency)
-    if len(pairs):
-        adjacency = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(faces),) * 2)
-        seen |= (adjacency + adjacency.T) @ seen.astype(np.float64) > 0
+    seen |= face_graph(mesh) @ seen.astype(np.float64) > 0
     unmeasured = np.zeros(len(faces), bool)
     if unmeasured_views:
         unmeasured = seen & (seeing >= unmeasured_views) & (measuring == 0) & (enclosing == 0)
