@@ -2,7 +2,8 @@
 
 ``views.select_problems`` picks source views and depth ranges from a sparse model;
 ``stereo.photometric_view`` / ``stereo.geometric_view`` compute one view's maps in COLMAP's layout;
-``patchmatch`` holds the algorithm; ``colmap_io`` reads and writes COLMAP's ``.bin`` maps;
+``patchmatch`` holds the algorithm; ``planar_fill`` gives untextured regions the plane around them;
+``colmap_io`` reads and writes COLMAP's ``.bin`` maps;
 ``bench`` measures speed and accuracy.
 
 numba's compiler (llvmlite) must be loaded before pycolmap: with pycolmap 4.2.1's wheel loaded

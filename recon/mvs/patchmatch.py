@@ -1081,11 +1081,20 @@ def own_texture(ref, window, sigma_spatial, sigma_color, out):
                 out[y, x] = math.sqrt(max(square / total - mean * mean, 0.0))
 
 
-def filter_depth(view: Checked, state: State, options: MVSOptions) -> State:
+def untextured(ref: np.ndarray, options: MVSOptions) -> np.ndarray:
+    """Where the pixel's own side of its window is untextured (:func:`own_texture` below
+    ``min_texture``): no depth is kept there, and :mod:`recon.mvs.planar_fill` fills such regions."""
+    window, sigma_spatial, sigma_color, _, _ = _kernel_params(options)
+    texture = np.empty(ref.shape, np.float64)
+    own_texture(ref, window, sigma_spatial, sigma_color, texture)
+    return texture < options.min_texture
+
+
+def filter_depth(view: Checked, state: State, options: MVSOptions, blank: np.ndarray | None = None) -> State:
     """Zero the pixels whose photometric cost over the sources that see them (:func:`seen_cost` of
     ``state.cost``, as :func:`geometric_depth` and :func:`photometric_costs` give it) is high, that
     fewer than ``filter_min_consistent`` source depth maps confirm, or whose own side of the window is
-    untextured (:func:`own_texture` below ``min_texture``)."""
+    untextured (:func:`untextured`, or ``blank`` where the caller computed it already)."""
     level = view.level
     g = level.geometry
     count = consistent_views(state.depth, state.normal, g.kinv, g.A, g.b, view.src_depth, view.depth_dims, g.M, g.c,
@@ -1096,10 +1105,7 @@ def filter_depth(view: Checked, state: State, options: MVSOptions) -> State:
     keep = (cost <= options.filter_max_cost) & (count >= options.filter_min_consistent)
     keep &= state.depth > 0
     if options.min_texture > 0:
-        window, sigma_spatial, sigma_color, _, _ = _kernel_params(options)
-        texture = np.empty(level.ref.shape, np.float64)
-        own_texture(level.ref, window, sigma_spatial, sigma_color, texture)
-        keep &= texture >= options.min_texture
+        keep &= ~(untextured(level.ref, options) if blank is None else blank)
     return State(np.where(keep, state.depth, 0).astype(np.float32),
                  np.where(keep[..., None], state.normal, 0).astype(np.float32),
                  np.where(keep, cost, MAX_COST).astype(np.float32), state.views)

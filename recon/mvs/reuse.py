@@ -21,11 +21,12 @@ record instead, and :func:`reusable` compares them within a tolerance:
   percentile depths (the current range without its margin): no depth the surface now has went
   unsearched.
 
-A final map's item is keyed by the view's photometric item and its sources' masks, not by its
-sources' photometric maps: those only check its depths (the geometric pass), and an earlier map of
-the same source photo, from the same cameras, checks them as well as a recomputed one. Keyed by
-them, a source whose own sources or range changed made every view using it recompute: on the zoo
-scene below, one view's grown range cost 9 maps, and 8 views choosing new sources cost all 20.
+A final map's item is keyed by the view's photometric item, the options only the final part reads
+(:data:`FINAL_ONLY`) and its sources' masks, not by its sources' photometric maps: those only check
+its depths (the geometric pass), and an earlier map of the same source photo, from the same
+cameras, checks them as well as a recomputed one. Keyed by them, a source whose own sources or range
+changed made every view using it recompute: on the zoo scene below, one view's grown range cost 9
+maps, and 8 views choosing new sources cost all 20.
 
 Measured on the zoo's classic scene (320x240), 20 views then 4 added: after sfm continued the
 model, each view's sources had moved relative to it by 0.07 to 0.30 px (0.21 median of each view's
@@ -73,15 +74,24 @@ def camera_record(view: ViewCamera, photo=None) -> dict:
     return record
 
 
-def _options(options: MVSOptions) -> dict:
-    """The options a map depends on (the thread count only splits the work)."""
-    return {f.name: getattr(options, f.name) for f in fields(MVSOptions) if f.name != "num_threads"}
+#: the options only the geometric pass, the filter and the fill read: they key a view's final maps, not
+#: its photometric ones, so changing one runs the final part again from the stored photometric maps
+FINAL_ONLY = ("geometric", "geometric_iterations", "geometric_weight", "geometric_max_error", "filter_max_cost",
+              "filter_min_consistent", "filter_max_reprojection", "filter_max_depth_error",
+              "filter_grazing_allowance", "planar_fill")
+
+
+def _options(options: MVSOptions, final: bool) -> dict:
+    """The options a view's photometric maps depend on, or (``final``) those only its final maps do (the
+    thread count only splits the work)."""
+    return {f.name: getattr(options, f.name) for f in fields(MVSOptions)
+            if f.name != "num_threads" and (f.name in FINAL_ONLY) == final}
 
 
 def photometric_items(problems: list[Problem], inputs: dict[str, ViewInput], options: MVSOptions,
                       version: int) -> dict[str, MapItem]:
     """Per reference view, the item of its photometric depth map; its meta is one part (:func:`part`)."""
-    settings = _options(options)
+    settings = _options(options, final=False)
     items = {}
     for p in problems:
         views = (p.ref, *p.sources)
@@ -92,8 +102,8 @@ def photometric_items(problems: list[Problem], inputs: dict[str, ViewInput], opt
     return items
 
 
-def geometric_items(problems: list[Problem], photometric: dict[str, MapItem],
-                    inputs: dict[str, ViewInput]) -> dict[str, MapItem]:
+def geometric_items(problems: list[Problem], photometric: dict[str, MapItem], inputs: dict[str, ViewInput],
+                    options: MVSOptions) -> dict[str, MapItem]:
     """Per reference view, the item of its final depth and normal maps (module doc): made from its
     photometric maps, checked against those of its sources that have any
     (:func:`recon.mvs.stereo.geometric_view`), masked sources' depths cleared."""
@@ -101,6 +111,7 @@ def geometric_items(problems: list[Problem], photometric: dict[str, MapItem],
     for p in problems:
         used = [s for s in p.sources if s in photometric]
         key = item_key({"item": "geometric_maps", "photometric": photometric[p.ref].key,
+                        "options": _options(options, final=True),
                         "checked_against": [[s, inputs[s].mask] for s in used]})
         items[p.ref] = MapItem(key, photometric[p.ref].meta)
     return items

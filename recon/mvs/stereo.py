@@ -32,6 +32,7 @@ import pycolmap
 from recon.mvs import patchmatch
 from recon.mvs.colmap_io import read_depth_map, read_normal_map, write_map
 from recon.mvs.options import MVSOptions
+from recon.mvs.planar_fill import fill_untextured
 from recon.mvs.views import Problem, ViewCamera, select_problems
 from recon.products import SparseModel
 
@@ -125,8 +126,14 @@ def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
                                                _seed(options, problem.ref))
         else:
             state = patchmatch.photometric_costs(view, state, options)
-        state = patchmatch.filter_depth(view, state, options)
+        fill = options.planar_fill and options.min_texture > 0
+        blank = patchmatch.untextured(view.level.ref, options) if fill else None
+        state = patchmatch.filter_depth(view, state, options, blank)
         depth, normal = state.depth, state.normal
+        if fill:
+            filled = fill_untextured(view.level.ref, blank, depth, normal, view.level.geometry.kinv,
+                                     options.filter_max_depth_error)
+            log.debug("%s: %d pixels of untextured regions filled with their rim's plane", problem.ref, filled)
     else:
         depth, normal = np.zeros_like(depth), np.zeros_like(normal)
     write_map(map_path(out_dir, "normal", problem.ref, "geometric"), normal)

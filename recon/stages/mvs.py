@@ -131,7 +131,7 @@ class Mvs(Stage):
             kept = {name for name in needed if _link_photometric(plan, stereo, name, own=name in refs)}
         for name in plan.earlier - kept:  # its earlier photometric maps went missing: computed with its new sources
             plan.photometric[name] = plan.fresh[name]
-        plan.geometric = reuse.geometric_items(plan.problems, plan.photometric, plan.inputs)
+        plan.geometric = reuse.geometric_items(plan.problems, plan.photometric, plan.inputs, plan.options)
         photometric = [p for p in plan.problems if p.ref in needed and p.ref not in kept]  # some done, if resumed
         if plan.reused:
             ctx.log.info("mvs: depth maps of %d of %d views reused from earlier runs", len(plan.reused), len(names))
@@ -244,7 +244,7 @@ def _plan(ctx: StageContext, dense: DenseScene, cfg: MvsConfig) -> _Plan:
                 if plan.holds("photometric", item) and stores["photometric_normal"].get(item.key) is not None:
                     plan.photometric[p.ref] = item
                     plan.earlier.add(p.ref)
-    plan.geometric = reuse.geometric_items(problems, plan.photometric, inputs)
+    plan.geometric = reuse.geometric_items(problems, plan.photometric, inputs, options)
     if ctx.reuse and not cfg.keep_photometric:
         plan.reused = {p.ref for p in problems if plan.holds("depth", plan.geometric[p.ref])
                        and stores["normal"].get(plan.geometric[p.ref].key) is not None}

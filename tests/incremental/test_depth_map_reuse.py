@@ -61,6 +61,20 @@ def test_a_window_radius_change_recomputes_every_depth_map_and_nothing_before_mv
     assert all(after[n].read_bytes() != before[n].read_bytes() for n in after)  # every map made again
 
 
+def test_an_option_only_the_final_maps_read_reuses_every_photometric_map(mvs_workspace, small_scene, tmp_path):
+    """The filter's options and ``planar_fill`` act after the photometric pass (reuse.FINAL_ONLY): the
+    final maps are made again from the stored photometric maps, and they change."""
+    ws = tmp_path / "ws"
+    shutil.copytree(mvs_workspace, ws, symlinks=True)
+    (first,) = manifests(ws, "mvs")
+    result = run_mvs(ws, small_scene, filter_max_cost=0.3)
+    assert result.ran == ["mvs"]
+    s = result.summaries["mvs"]
+    assert (s["reused"], s["computed"], s["photometric_computed"], s["photometric_reused"]) == (0, 16, 0, 16)
+    before, after = depth_maps(ws, first), depth_maps(ws, manifests(ws, "mvs")[1])
+    assert sum(after[n].read_bytes() != before[n].read_bytes() for n in after) >= 8
+
+
 def test_depth_maps_are_reused_when_nothing_they_depend_on_changed(mvs_workspace, small_scene, tmp_path):
     """The mvs output lost, the same config runs mvs again: every view's maps come from the item
     store (``recon status`` says so first), identical to those the first run computed."""

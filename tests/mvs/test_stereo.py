@@ -2,7 +2,9 @@
 
 import json
 import shutil
+from dataclasses import replace
 
+import cv2
 import numpy as np
 import pycolmap
 import pytest
@@ -64,6 +66,45 @@ def test_a_rerun_of_a_view_is_identical(stereo, tmp_path):
         for pass_name in ("photometric", "geometric"):
             a = map_path(dense / "stereo", kind, problem.ref, pass_name).read_bytes()
             assert map_path(tmp_path / "stereo", kind, problem.ref, pass_name).read_bytes() == a
+
+
+def _flat_patch(root, name: str, size=(40, 60), margin=6) -> tuple[slice, slice]:
+    """The first patch of ``size`` (rows, cols) whose pixels, and ``margin`` px around, show one plane."""
+    scene = load_scene(root / "scene")
+    depth, normal = scene.depth(name), np.load(root / "scene" / "gt" / "normal" / f"{name.rsplit('.', 1)[0]}.npy")
+    (h, w), m = size, margin
+    for y in range(m, depth.shape[0] - h - m, 4):
+        for x in range(m, depth.shape[1] - w - m, 4):
+            around = normal[y - m:y + h + m, x - m:x + w + m]
+            if (depth[y - m:y + h + m, x - m:x + w + m] > 0).all() and np.abs(around - around[0, 0]).max() < 1e-3:
+                return slice(y, y + h), slice(x, x + w)
+    raise AssertionError("no planar patch in the test scene")
+
+
+def test_a_patch_painted_flat_on_a_plane_gets_that_plane_back_from_the_planar_fill(stereo, tmp_path):
+    """The reference photo's patch painted in one colour loses its depths to the filter; the fill gives them
+    back on the true surface, and changes no other depth."""
+    root, _ = stereo
+    dense = tmp_path / "dense"
+    shutil.copytree(root / "dense", dense)
+    problem = next(p for p in select_problems(pycolmap.Reconstruction(dense / "sparse")) if p.ref == "view_002.jpg")
+    rows, cols = _flat_patch(root, problem.ref)
+    image = cv2.imread(str(dense / "images" / problem.ref))
+    image[rows, cols] = image[rows, cols].reshape(-1, 3).mean(axis=0)
+    cv2.imwrite(str(dense / "images" / problem.ref), image, [cv2.IMWRITE_JPEG_QUALITY, 100])
+    maps = {}
+    for fill in (False, True):
+        out = tmp_path / f"stereo-{fill}"
+        shutil.copytree(dense / "stereo", out)
+        geometric_view(dense, problem, replace(MVSOptions(), planar_fill=fill), out)
+        maps[fill] = read_depth_map(map_path(out, "depth", problem.ref, "geometric"))
+    kept = maps[False] > 0
+    assert not kept[rows, cols][8:-8, 8:-8].any()  # the filter took the patch's depths
+    np.testing.assert_array_equal(maps[True][kept], maps[False][kept])
+    added = (maps[True] > 0) & ~kept
+    assert added[rows, cols].mean() > 0.6
+    truth = load_scene(root / "scene").depth(problem.ref)
+    assert np.mean(np.abs(maps[True][added] / truth[added] - 1) < 0.01) >= 0.95
 
 
 def _fuse(dense):
