@@ -134,13 +134,10 @@ def _rim_plane(xs, ys, depths, normals, centroid, kinv, max_depth_error, seed):
     if not np.any(drawn):
         return None
     candidates = candidates[drawn] / norms[drawn, None]
-    counts = np.count_nonzero(_fits(candidates.T, np.sum(candidates * a[drawn], axis=1), rays, depths,
-                                    max_depth_error), axis=0)
-    best = candidates[np.argmax(counts)]
-    inliers = _fits(best, float(best @ a[drawn][np.argmax(counts)]), rays, depths, max_depth_error)
-    if np.count_nonzero(inliers) < PLANE_INLIERS * len(points):
+    fits = _fits(candidates.T, np.sum(candidates * a[drawn], axis=1), rays, depths, max_depth_error)
+    best = fits[:, np.argmax(np.count_nonzero(fits, axis=0))]  # the inliers of the draw that fits most
+    if np.count_nonzero(best) < PLANE_INLIERS * len(points):
         return None
-    best = inliers
     centre = points[best].mean(axis=0)
     n = np.linalg.svd(points[best] - centre, full_matrices=False)[2][2]  # least squares over the inliers
     q = float(n @ centre)
