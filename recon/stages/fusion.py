@@ -24,9 +24,10 @@ class FusionConfig:
                                        "Zoo: 0.5 against 1, fused F@0.2 % mean .927 -> .937, turntable_black .818 "
                                        "-> .917 (docs/DECISIONS.md)", gt=0)
     mesh_reproj_error: float = opt(1.0, "the mesh stage meshes a second cloud, fused with this reprojection error "
-                                        "(px); 0: it meshes dense/fused.ply. Zoo: the 1 px cloud's Poisson mesh is "
-                                        ".002-.005 F@0.2 % above the 0.5 px cloud's on ten scenes, and no scene's "
-                                        "held-out coverage falls (docs/DECISIONS.md)", ge=0)
+                                        "(px), mesh_depth_error and mesh_normal_error; 0: it meshes dense/fused.ply. "
+                                        "Zoo: the 1 px cloud's Poisson mesh is .002-.005 F@0.2 % above the 0.5 px "
+                                        "cloud's on ten scenes, and no scene's held-out coverage falls "
+                                        "(docs/DECISIONS.md)", ge=0)
     max_depth_error: float = opt(0.02, "largest relative depth difference between agreeing views for "
                                        "dense/fused.ply (COLMAP: 0.01). Zoo, with max_normal_error 20: fused F@0.2 % "
                                        "mean .9416 -> .9427, far_field .902 -> .916, no scene down by more than .001 "
