@@ -148,18 +148,16 @@ def main(argv: list[str] | None = None) -> int:
 
 
 #: OpenMVS 2.3 (CPU) on a comparable 24-view synthetic scene, measured on these machines (issues 3 and 4)
-OPENMVS = {"fused@0.002": 0.975, "fused@0.005": 0.994, "mesh@0.002": 0.937, "mesh@0.005": 0.996, "psnr": 27.9}
+OPENMVS = {"fused@0.002": 0.975, "fused@0.005": 0.994, "mesh@0.002": 0.937, "mesh@0.005": 0.996, "psnr": 27.9,
+           "coverage": 0.997}
 
 
 def bench_dense(out: Path) -> None:
     """Photos to textured mesh on a synthetic scene (24 views, 640x480, 4 held-out views): stage times,
     accuracy/completeness/F of the fused cloud and the mesh, masked PSNR of the textured and of the
-    vertex-coloured mesh in the held-out views; OpenMVS 2.3's figures beside."""
-    import numpy as np
-    import trimesh
-
-    from recon.eval.texture import masked_psnr, render
-    from recon.surface.export import read_glb
+    vertex-coloured mesh in the held-out views and the texture's coverage of them (as the zoo scores
+    them: recon.quality_bench.holdout_texture); OpenMVS 2.3's figures beside."""
+    from recon.quality_bench import holdout_texture
     from recon.synth import load_scene, render_scene
 
     scene_dir = out / "scene"
@@ -170,20 +168,7 @@ def bench_dense(out: Path) -> None:
     shutil.rmtree(ws, ignore_errors=True)
     result = recon.run(REPO / "pipelines" / "full.yaml", images=str(scene_dir / "images"), workspace=str(ws))
     figures = recon.api.evaluate(ws, scene_dir)
-    sim = recon.api.model_to_ground_truth(ws, scene_dir)
-    textured = read_glb(ws / "textured.glb")  # in the model's frame (the file is glTF's Y up)
-    colored = trimesh.load(ws / "mesh.ply", process=False)
-    psnr = {"texture": [], "vertex colours": []}
-    for name, cam in scene.cameras(holdout=True).items():
-        from PIL import Image
-
-        truth = np.asarray(Image.open(scene.root / "holdout" / "images" / name).convert("RGB"))
-        for key, mesh in (("texture", textured), ("vertex colours", colored)):
-            moved = mesh.copy()
-            moved.vertices = sim.apply(np.asarray(mesh.vertices))
-            image, mask = render(moved, cam, cam.width, cam.height)
-            mask &= scene.depth(name) > 0
-            psnr[key].append(masked_psnr(image, truth, mask))
+    held_out = holdout_texture(ws, scene)
     times = ", ".join(f"{k} {v:.1f}" for k, v in result.seconds.items())
     print("\n== dense: synthetic scene, 24 views 640x480, photos to textured mesh (poses estimated) ==")
     print(f"stage seconds: {times}")
@@ -192,8 +177,9 @@ def bench_dense(out: Path) -> None:
         m = figures[key]
         print(f"{key:<16}{m['fscore@0.002'] / 100:>8.3f}{m['fscore@0.005'] / 100:>8.3f}{m['accuracy@0.002']:>10.1f}"
               f"{m['completeness@0.002']:>11.1f}   {OPENMVS[key + '@0.002']:.3f} / {OPENMVS[key + '@0.005']:.3f}")
-    print(f"held-out PSNR: textured {np.mean(psnr['texture']):.2f} dB, vertex colours "
-          f"{np.mean(psnr['vertex colours']):.2f} dB (OpenMVS 2.3 TextureMesh: {OPENMVS['psnr']} dB)")
+    print(f"held-out views: textured {held_out['psnr']:.2f} dB, vertex colours {held_out['psnr_vertex_colours']:.2f} "
+          f"dB, coverage {held_out['coverage']:.3f} (OpenMVS 2.3 TextureMesh: {OPENMVS['psnr']} dB, coverage "
+          f"{OPENMVS['coverage']})")
     photos = sum(p.stat().st_size for p in (scene_dir / "images").iterdir())
     print(f"workspace: {_bytes_on_disk(ws) / 1e6:.0f} MB besides the photos ({photos / 1e6:.1f} MB)")
 
