@@ -177,9 +177,10 @@ def bench_dense(out: Path) -> None:
         m = figures[key]
         print(f"{key:<16}{m['fscore@0.002'] / 100:>8.3f}{m['fscore@0.005'] / 100:>8.3f}{m['accuracy@0.002']:>10.1f}"
               f"{m['completeness@0.002']:>11.1f}   {OPENMVS[key + '@0.002']:.3f} / {OPENMVS[key + '@0.005']:.3f}")
-    print(f"held-out views: textured {held_out['psnr']:.2f} dB, vertex colours {held_out['psnr_vertex_colours']:.2f} "
-          f"dB, coverage {held_out['coverage']:.3f} (OpenMVS 2.3 TextureMesh: {OPENMVS['psnr']} dB, coverage "
-          f"{OPENMVS['coverage']})")
+    nothing = float("nan")  # no PSNR where the mesh shows nothing of the held-out views' surface
+    print(f"held-out views: textured {held_out.get('psnr', nothing):.2f} dB, vertex colours "
+          f"{held_out.get('psnr_vertex_colours', nothing):.2f} dB, coverage {held_out['coverage']:.3f} "
+          f"(OpenMVS 2.3 TextureMesh: {OPENMVS['psnr']} dB, coverage {OPENMVS['coverage']})")
     photos = sum(p.stat().st_size for p in (scene_dir / "images").iterdir())
     print(f"workspace: {_bytes_on_disk(ws) / 1e6:.0f} MB besides the photos ({photos / 1e6:.1f} MB)")
 
