@@ -9,6 +9,8 @@ must beat) and the texture's coverage; seconds to render the scene (meant to be 
 near 0 where an earlier run's rendering is reused) and per stage. Then the mean and the worst scene. Beside
 them, to tell which part of the chain lost a scene's quality: the cameras' relative-pose AUC at 5
 degrees (sfm) and the final depth maps' accuracy and completeness at 0.2 % (mvs; recon.eval.depth).
+And ``maxF``, the highest fused F@0.2 % the scene allows: a fused point needs two views, and some of the
+observable surface only one photo sees (:func:`seen_twice`).
 
 - PSNR is over the pixels where the rendered mesh and the true surface both are (recon.eval.texture).
 - Coverage is the share of the held-out views' true-surface pixels (ground-truth depth > 0; in a
@@ -152,6 +154,22 @@ def bench_scene(name: str, out: Path, config: Path, overrides: list[str], width:
     return row
 
 
+def seen_twice(scene) -> float:
+    """The share of the observable surface (what one input view or more sees, recon.eval.surface) that two
+    input views or more see. Fusion merges a point only where two views' depth maps agree on it, and no
+    depth is measured where one photo alone sees the surface, so a fused cloud's completeness is at most
+    this share s, and its F-score at most 2s / (1 + s): the ``maxF`` column."""
+    from recon.eval.surface import observed_points, views_seeing
+
+    points = observed_points(scene, float(TAUS[0]) * scene.extent / 2)
+    return float(np.mean(views_seeing(scene, points) >= 2))
+
+
+def f_ceiling(share: float) -> float:
+    """The F-score of a perfectly accurate reconstruction complete over ``share`` of the surface."""
+    return 2 * share / (1 + share)
+
+
 def scene_figures(ws: Path, scene) -> dict:
     """The figures of a finished workspace of a zoo scene (the module doc's columns)."""
     figures = recon.api.evaluate(ws, scene.root)
@@ -159,6 +177,8 @@ def scene_figures(ws: Path, scene) -> dict:
         figures |= object_figures(ws, scene)
     row = {"registered": figures["poses"]["registered"], "pose_auc@5": figures["poses"]["auc@5"] / 100,
            "depth": depth_figures(ws, scene)}
+    if not scene.masked:  # (scored against the whole object, the underside no photo sees included)
+        row["seen_twice"] = seen_twice(scene)
     for key in ("fused", "mesh"):
         row[key] = {f"F@{t}": figures[key][f"fscore@{t}"] / 100 for t in TAUS if key in figures}
     return row | holdout_texture(ws, scene)
@@ -180,7 +200,7 @@ def print_table(rows: list[dict], summ: dict) -> None:
     stages = [s for s in STAGES if any(s in r.get("seconds", {}) for r in rows)]
     short = {"preprocess": "prep", "features": "feat", "matching": "match", "undistort": "undist",
              "fusion": "fuse", "texture": "tex"}
-    head = (f"{'scene':<16}{'reg':>6}{'AUC5':>6}{'dAcc.2':>7}{'dCmp.2':>7}{'fusedF.2':>9}{'fusedF.5':>9}{'meshF.2':>8}{'meshF.5':>8}{'texPSNR':>8}"
+    head = (f"{'scene':<16}{'reg':>6}{'AUC5':>6}{'dAcc.2':>7}{'dCmp.2':>7}{'fusedF.2':>9}{'maxF':>6}{'fusedF.5':>9}{'meshF.2':>8}{'meshF.5':>8}{'texPSNR':>8}"
             f"{'vcPSNR':>7}{'cover':>7} |{'render':>7}" + "".join(f"{short.get(s, s):>7}" for s in stages) + f"{'total':>8}")
     print(head)
     print("-" * len(head))
@@ -193,8 +213,9 @@ def print_table(rows: list[dict], summ: dict) -> None:
         reg = f"{r['registered']}/{r['views']}" if "registered" in r else "-"
         secs = r.get("seconds", {})
         depth = r.get("depth", {})
+        ceiling = f_ceiling(r["seen_twice"]) if "seen_twice" in r else None
         print(f"{r['scene']:<16}{reg:>6}{fig(r.get('pose_auc@5'), '6.2f')}{fig(depth.get('accuracy@0.002'), '7.3f')}"
-              f"{fig(depth.get('completeness@0.002'), '7.3f')}{fig(f[0], '9.3f')}{fig(f[1], '9.3f')}{fig(f[2], '8.3f')}{fig(f[3], '8.3f')}"
+              f"{fig(depth.get('completeness@0.002'), '7.3f')}{fig(f[0], '9.3f')}{fig(ceiling, '6.3f')}{fig(f[1], '9.3f')}{fig(f[2], '8.3f')}{fig(f[3], '8.3f')}"
               f"{fig(r.get('psnr'), '8.2f')}{fig(r.get('psnr_vertex_colours'), '7.2f')}{fig(r.get('coverage'), '7.3f')} |"
               f"{fig(r.get('render_seconds'), '7.1f')}" + "".join(f"{secs[s]:>7.1f}" if s in secs else f"{'-':>7}" for s in stages)
               + f"{sum(secs.values()):>8.1f}")
@@ -202,7 +223,7 @@ def print_table(rows: list[dict], summ: dict) -> None:
             print(f"{'':<16}failed: {r['error']}")
     for which in ("mean", "worst"):
         m = summ[which]
-        print(f"{which:<16}{'':>26}{fig(m.get('fused@0.002'), '9.3f')}{fig(m.get('fused@0.005'), '9.3f')}"
+        print(f"{which:<16}{'':>26}{fig(m.get('fused@0.002'), '9.3f')}{'':>6}{fig(m.get('fused@0.005'), '9.3f')}"
               f"{fig(m.get('mesh@0.002'), '8.3f')}{fig(m.get('mesh@0.005'), '8.3f')}{fig(m.get('psnr'), '8.2f')}"
               f"{fig(m.get('psnr_vertex_colours'), '7.2f')}{fig(m.get('coverage'), '7.3f')} |")
     if "psnr_gain" in summ["mean"]:

@@ -109,6 +109,37 @@ def _observed_points(root: str, spacing: float, _stamp: int) -> np.ndarray:
     return pts[first]
 
 
+def views_seeing(scene: SceneInfo, points: np.ndarray, tolerance: float = 0.01) -> np.ndarray:
+    """How many of ``scene``'s regular views see each of ``points`` (N, 3): the point projects into the
+    view, and a true depth at its pixel or one of the 8 around it is the point's own within ``tolerance``
+    (relative). The neighbours count so that a surface seen at a grazing angle, whose depth changes fast
+    from pixel to pixel, is not missed; near an occluding edge the count can be one too high, not too low.
+    Pinhole views only (a fisheye or 360 view's map holds ranges: ValueError)."""
+    from recon.synth.wide import load_views
+
+    if load_views(scene.root):
+        raise ValueError(f"{scene.root}: views_seeing counts pinhole views only")
+    count = np.zeros(len(points), np.int32)
+    for name, cam in scene.cameras().items():
+        truth = scene.depth(name)
+        height, width = truth.shape
+        local = points @ cam.R.T + cam.t
+        z = local[:, 2]
+        front = np.nonzero(z > 0)[0]
+        pix = local[front] @ cam.K.T
+        u = np.floor(pix[:, 0] / pix[:, 2]).astype(np.int64)
+        v = np.floor(pix[:, 1] / pix[:, 2]).astype(np.int64)
+        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        front, u, v = front[inside], u[inside], v[inside]
+        seen = np.zeros(len(front), bool)
+        for dv in (-1, 0, 1):
+            for du in (-1, 0, 1):
+                d = truth[np.clip(v + dv, 0, height - 1), np.clip(u + du, 0, width - 1)]
+                seen |= np.abs(d - z[front]) <= tolerance * z[front]
+        count[front[seen]] += 1
+    return count
+
+
 def sample_mesh(vertices: np.ndarray, faces: np.ndarray, spacing: float, seed: int = 0) -> np.ndarray:
     """Points spread uniformly over a triangle mesh's area, about one per ``spacing``^2 (between
     1000 and MAX_MESH_SAMPLES)."""

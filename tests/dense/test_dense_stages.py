@@ -42,6 +42,12 @@ def dense_workspace(sparse_workspace, small_scene, tmp_path_factory) -> Path:
     return ws
 
 
+@pytest.fixture(scope="module")
+def dense_figures(dense_workspace, small_scene) -> dict:
+    """recon.api.evaluate of the dense workspace (poses, fused cloud, mesh), for the tests that read it."""
+    return recon.api.evaluate(dense_workspace, small_scene)
+
+
 def test_dense_layout_reads_like_colmap(dense_workspace):
     import pycolmap
 
@@ -59,9 +65,8 @@ def test_dense_layout_reads_like_colmap(dense_workspace):
     assert np.mean(kept) > 0.3
 
 
-def test_fused_cloud_lies_on_the_ground_truth_surface(dense_workspace, small_scene):
-    figures = recon.api.evaluate(dense_workspace, small_scene)
-    fused = figures["fused"]
+def test_fused_cloud_lies_on_the_ground_truth_surface(dense_figures):
+    fused = dense_figures["fused"]
     assert fused["n_points"] > 5000
     assert fused["accuracy@0.005"] > 80  # at 240 px, a quick smoke check; quality is benchmarked elsewhere
 
@@ -81,7 +86,7 @@ def test_killed_mvs_resumes_without_recomputing_finished_views(sparse_workspace,
     shutil.copytree(sparse_workspace, ws, symlinks=True)
     cmd = [sys.executable, "-m", "recon.cli", "run", str(FULL), "--images", str(small_scene / "images"),
            "--workspace", str(ws), "--until", "mvs", "-o", "executor=serial"]
-    for o in QUICK:
+    for o in [*QUICK, "mvs.max_image_size=160"]:  # (resuming is what is tested: smaller maps, sooner)
         cmd += ["-o", o]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     maps = lambda: sorted(ws.glob(".recon/cache/mvs/*.partial/stereo/depth_maps/*.photometric.bin"))  # noqa: E731
@@ -104,8 +109,8 @@ def test_killed_mvs_resumes_without_recomputing_finished_views(sparse_workspace,
     assert resumed.count(": photometric depth") == 16 - len(finished)
 
 
-def test_mesh_lies_on_the_ground_truth_surface(dense_workspace, small_scene):
-    mesh = recon.api.evaluate(dense_workspace, small_scene)["mesh"]
+def test_mesh_lies_on_the_ground_truth_surface(dense_figures):
+    mesh = dense_figures["mesh"]
     assert mesh["accuracy@0.005"] > 70 and mesh["completeness@0.005"] > 50  # quick settings; see the benchmark
 
 
@@ -183,7 +188,7 @@ def test_each_cloud_merges_pixels_within_its_own_tolerances(dense_workspace, sma
     assert (folder / "fused.ply").exists() and not (folder / "meshing.ply").exists()
 
 
-def test_delaunay_mesh_lies_on_the_surface_and_is_textured(dense_workspace, small_scene, tmp_path):
+def test_delaunay_mesh_lies_on_the_surface_and_is_textured(dense_workspace, dense_figures, small_scene, tmp_path):
     """mesh.method: delaunay through the pipeline: the graph-cut surface of the fused points, textured."""
     import shutil
 
@@ -195,7 +200,7 @@ def test_delaunay_mesh_lies_on_the_surface_and_is_textured(dense_workspace, smal
     assert done.returncode == 0, done.stderr
     manifest = json.loads(_newest(ws / ".recon" / "cache" / "mesh").read_text())
     assert manifest["config"]["method"] == "delaunay"
-    poisson = recon.api.evaluate(dense_workspace, small_scene)["mesh"]
+    poisson = dense_figures["mesh"]
     mesh = recon.api.evaluate(ws, small_scene)["mesh"]
     assert mesh["accuracy@0.005"] > 70 and mesh["completeness@0.005"] > 50  # as Poisson's, quick settings
     assert mesh["fscore@0.005"] > poisson["fscore@0.005"] - 10
@@ -285,7 +290,7 @@ def test_two_agreeing_views_make_a_more_complete_cloud(dense_workspace, small_sc
     assert figures[2]["accuracy@0.005"] > figures[3]["accuracy@0.005"] - 1  # 99.5 against 99.8
 
 
-def test_mesh_faces_the_views_see_through_can_be_dropped(dense_workspace, small_scene, tmp_path):
+def test_mesh_faces_the_views_see_through_can_be_dropped(dense_workspace, dense_figures, small_scene, tmp_path):
     """mesh.free_space: faces whose centre more views see through than agree with go (Poisson's surface
     where the views saw nothing), from the same surface; what stays is at least as accurate."""
     import shutil
@@ -299,6 +304,6 @@ def test_mesh_faces_the_views_see_through_can_be_dropped(dense_workspace, small_
     dropped = runs[True]["free_space_faces_dropped"]
     assert dropped > 0 and runs[False]["free_space_faces_dropped"] == 0
     assert runs[True]["faces"] == runs[False]["faces"] - dropped
-    accuracy = {k: recon.api.evaluate(w, small_scene)["mesh"]["accuracy@0.005"] for k, w in
-                (("before", dense_workspace), ("after", ws))}
+    accuracy = {"before": dense_figures["mesh"]["accuracy@0.005"],
+                "after": recon.api.evaluate(ws, small_scene)["mesh"]["accuracy@0.005"]}
     assert accuracy["after"] >= accuracy["before"] - 0.1, accuracy

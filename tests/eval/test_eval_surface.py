@@ -5,7 +5,7 @@ import pytest
 import trimesh
 from scipy.special import erf
 
-from recon.eval.surface import observed_points, sample_mesh, surface_metrics
+from recon.eval.surface import observed_points, sample_mesh, surface_metrics, views_seeing
 from recon.synth import render_scene
 
 
@@ -105,6 +105,23 @@ def test_observed_points_are_on_the_surface_and_thinned(scene, gt_mesh):
     # one point per voxel: no two points share a voxel
     keys = np.floor(pts / spacing).astype(np.int64)
     assert len(np.unique(keys, axis=0)) == len(pts)
+
+
+def test_views_seeing_counts_the_views_whose_true_depth_holds_the_point(scene):
+    from recon.geometry.transforms import backproject
+
+    points = observed_points(scene, 0.002 * scene.extent)
+    count = views_seeing(scene, points)
+    assert count.min() >= 1 and count.max() <= len(scene.cameras())  # each is some view's depth
+    assert count.mean() > 2  # an orbit: most of the surface is seen by several views
+    # the points one view's depth map gives, moved off the surface along its normal by 2 % of the extent
+    name, cam = next(iter(scene.cameras().items()))
+    depth = scene.depth(name)
+    v, u = np.nonzero(depth > 0)
+    on = backproject(cam.K, cam.R, cam.t, np.column_stack([u + 0.5, v + 0.5]), depth[v, u])
+    off = on + 0.02 * scene.extent * (scene.normal(name)[v, u] @ cam.R)
+    assert views_seeing(scene, on).min() >= 1
+    assert np.mean(views_seeing(scene, off) == 0) > 0.97  # (not those at a concave corner: on the other face)
 
 
 def test_object_metrics_take_a_point_cloud_too():

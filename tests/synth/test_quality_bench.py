@@ -38,6 +38,7 @@ def test_bench_runs_a_tiny_scene_end_to_end(tmp_path, capsys):
     assert row["registered"] >= 8 and 0.0 < row["fused"]["F@0.005"] <= 1.0 and 0.0 < row["coverage"] <= 1.0
     assert row["psnr"] > 10 and {"mvs", "texture"} <= set(row["seconds"])
     assert 0.0 <= row["pose_auc@5"] <= 1.0 and 0.0 < row["depth"]["completeness@0.002"] <= 1.0
+    assert 0.0 < row["seen_twice"] <= 1.0
     assert "turntable_black" in capsys.readouterr().out
 
 
@@ -48,3 +49,19 @@ def test_a_rendering_of_an_earlier_scene_definition_is_rendered_again(tmp_path):
     assert quality_bench.scene_for("turntable_black", root, 80, 60, 3).scene_json.stat().st_mtime_ns == written
     root.with_name("scene.digest").write_text("an earlier definition")
     assert quality_bench.scene_for("turntable_black", root, 80, 60, 3).scene_json.stat().st_mtime_ns != written
+
+
+def test_fewer_views_leave_less_surface_seen_twice(tmp_path):
+    """maxF, the highest fused F a scene allows: the share of its observable surface two views see."""
+    few = quality_bench.seen_twice(quality_bench.scene_for("turntable_black", tmp_path / "a" / "scene", 80, 60, 3))
+    many = quality_bench.seen_twice(quality_bench.scene_for("turntable_black", tmp_path / "b" / "scene", 80, 60, 12))
+    assert 0.0 < few < many <= 1.0
+    assert quality_bench.f_ceiling(1.0) == 1.0 and quality_bench.f_ceiling(0.8) == pytest.approx(1.6 / 1.8)
+
+
+def test_the_table_prints_maxf_where_it_was_measured(capsys):
+    rows = [_row("a", 0.9, 0.8, 26.0, 22.0, 0.99) | {"seen_twice": 0.8}, _row("b", 0.7, 0.6, 24.0, 23.0, 0.95)]
+    quality_bench.print_table(rows, quality_bench.summary(rows))
+    lines = capsys.readouterr().out.splitlines()
+    assert "maxF" in lines[0]
+    assert f"{1.6 / 1.8:.3f}" in next(line for line in lines if line.startswith("a "))
