@@ -20,9 +20,11 @@ evidence to be unambiguous:
   within the filter's relative depth error (``filter_max_depth_error``), found by RANSAC;
 - the plane's inliers must surround the region (some in :data:`SURROUND` of the 8 directions from its
   centroid), so a plane seen along one side is not carried across;
-- at least half of the inliers' own normals must lie within :data:`NORMAL_AGREEMENT` degrees of the
-  plane's: the limb of an untextured ball is a planar circle, but the normals along it are not the
-  disc's;
+- the inliers must not be seen edge-on: the limb of an untextured ball is a planar circle, but there the
+  surface turns away from the camera, and the inliers' own normals lie across their rays (the median
+  cosine between them under :data:`EDGE_ON`). A box face's rim is its edges, where the depths and
+  normals are those of the faces around it, seen from the front: their normals say nothing of the
+  face's own (zoo, docs/DECISIONS.md);
 - the plane must face the camera at no grazing angle (cosine at least :data:`MIN_COS` at every
   filled pixel).
 
@@ -50,8 +52,8 @@ PLANE_INLIERS = 0.7
 #: of the 8 directions from a region's centroid, how many must hold some of its plane's inliers: 6 admits
 #: a face between two measured edges whose other sides border untextured faces, not a plane seen on one side
 SURROUND = 6
-#: largest angle (degrees) between the plane's normal and those of half of its inliers
-NORMAL_AGREEMENT = 30.0
+#: the median cosine between the inliers' normals and their rays under which the rim is a limb seen edge-on
+EDGE_ON = 0.1
 #: smallest cosine between the plane's normal and a filled pixel's ray
 MIN_COS = 0.1
 #: RANSAC draws per region (seeded by the region: the same maps give the same fill)
@@ -149,8 +151,8 @@ def _rim_plane(xs, ys, depths, normals, centroid, kinv, max_depth_error, seed):
     directions = np.arctan2(ys[inliers] - centroid[1], xs[inliers] - centroid[0])
     if len(np.unique(np.floor((directions + math.pi) / (math.pi / 4)).astype(int) % 8)) < SURROUND:
         return None
-    agree = normals[inliers] @ n >= math.cos(math.radians(NORMAL_AGREEMENT))
-    if np.count_nonzero(agree) < 0.5 * np.count_nonzero(inliers):
+    facing = np.abs(np.sum(normals[inliers] * rays[inliers], axis=1)) / np.linalg.norm(rays[inliers], axis=1)
+    if np.median(facing) < EDGE_ON:
         return None
     return n, q
 

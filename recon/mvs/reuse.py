@@ -74,6 +74,12 @@ def camera_record(view: ViewCamera, photo=None) -> dict:
     return record
 
 
+#: a new photometric version makes every view's photometric maps again; a new final version only its final
+#: maps (the geometric pass, the filter and the fill: recon.mvs.planar_fill's rules), from the stored
+#: photometric maps. The mvs stage's own version changes with either.
+PHOTOMETRIC_VERSION = 10
+FINAL_VERSION = 2
+
 #: the options only the geometric pass, the filter and the fill read: they key a view's final maps, not
 #: its photometric ones, so changing one runs the final part again from the stored photometric maps
 FINAL_ONLY = ("geometric", "geometric_iterations", "geometric_weight", "geometric_max_error", "filter_max_cost",
@@ -88,14 +94,13 @@ def _options(options: MVSOptions, final: bool) -> dict:
             if f.name != "num_threads" and (f.name in FINAL_ONLY) == final}
 
 
-def photometric_items(problems: list[Problem], inputs: dict[str, ViewInput], options: MVSOptions,
-                      version: int) -> dict[str, MapItem]:
+def photometric_items(problems: list[Problem], inputs: dict[str, ViewInput], options: MVSOptions) -> dict[str, MapItem]:
     """Per reference view, the item of its photometric depth map; its meta is one part (:func:`part`)."""
     settings = _options(options, final=False)
     items = {}
     for p in problems:
         views = (p.ref, *p.sources)
-        key = item_key({"item": "photometric_depth", "version": version, "options": settings, "ref": p.ref,
+        key = item_key({"item": "photometric_depth", "version": PHOTOMETRIC_VERSION, "options": settings, "ref": p.ref,
                         "images": [[n, inputs[n].image] for n in views], "mask": inputs[p.ref].mask})
         items[p.ref] = MapItem(key, {"parts": [{"ref": p.ref, "cameras": {n: inputs[n].camera for n in views},
                                                 "range": [p.depth_min, p.depth_max]}]})
@@ -110,7 +115,7 @@ def geometric_items(problems: list[Problem], photometric: dict[str, MapItem], in
     items = {}
     for p in problems:
         used = [s for s in p.sources if s in photometric]
-        key = item_key({"item": "geometric_maps", "photometric": photometric[p.ref].key,
+        key = item_key({"item": "geometric_maps", "version": FINAL_VERSION, "photometric": photometric[p.ref].key,
                         "options": _options(options, final=True),
                         "checked_against": [[s, inputs[s].mask] for s in used]})
         items[p.ref] = MapItem(key, photometric[p.ref].meta)

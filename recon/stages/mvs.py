@@ -85,7 +85,7 @@ def _view_pass(task) -> str:
 @register
 class Mvs(Stage):
     name = "mvs"
-    version = 10
+    version = 11
     Config = MvsConfig
     requires = (DenseScene, SparseModel, PreparedPhotos)  # the photos and their cameras key the maps kept
     produces = DepthMaps
@@ -232,7 +232,7 @@ def _plan(ctx: StageContext, dense: DenseScene, cfg: MvsConfig) -> _Plan:
         inputs[name] = reuse.ViewInput(ctx.digest(picture), ctx.digest(mask) if mask.is_file() else None,
                                        reuse.camera_record(view_camera(image, model.camera(image.camera_id)),
                                                            original))
-    fresh = reuse.photometric_items(problems, inputs, options, Mvs.version)
+    fresh = reuse.photometric_items(problems, inputs, options)
     folder = ctx.workspace.items_dir("mvs")
     stores = {kind: ItemStore(folder / kind, suffix) for kind, suffix in _STORES.items()}
     plan = _Plan(options, problems, inputs, fresh, dict(fresh), {}, stores)
@@ -240,7 +240,7 @@ def _plan(ctx: StageContext, dense: DenseScene, cfg: MvsConfig) -> _Plan:
         for p in problems:  # a view with new sources starts from the photometric maps its earlier ones gave
             before = previous.get(p.ref)
             if before and before != p.sources and all(s in inputs for s in before):
-                item = reuse.photometric_items([replace(p, sources=before)], inputs, options, Mvs.version)[p.ref]
+                item = reuse.photometric_items([replace(p, sources=before)], inputs, options)[p.ref]
                 if plan.holds("photometric", item) and stores["photometric_normal"].get(item.key) is not None:
                     plan.photometric[p.ref] = item
                     plan.earlier.add(p.ref)

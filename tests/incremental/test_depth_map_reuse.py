@@ -75,6 +75,23 @@ def test_an_option_only_the_final_maps_read_reuses_every_photometric_map(mvs_wor
     assert sum(after[n].read_bytes() != before[n].read_bytes() for n in after) >= 8
 
 
+def test_a_new_final_version_makes_the_final_maps_again_from_the_stored_photometric_ones(mvs_workspace, small_scene,
+                                                                                        tmp_path, monkeypatch):
+    """A change to the filter or the fill (reuse.FINAL_VERSION, with the stage's version) makes every final
+    map again, not the photometric maps."""
+    from recon.mvs import reuse
+    from recon.stages.mvs import Mvs
+
+    ws = tmp_path / "ws"
+    shutil.copytree(mvs_workspace, ws, symlinks=True)
+    monkeypatch.setattr(reuse, "FINAL_VERSION", reuse.FINAL_VERSION + 1)
+    monkeypatch.setattr(Mvs, "version", Mvs.version + 1)
+    result = run_mvs(ws, small_scene)
+    assert result.ran == ["mvs"]
+    s = result.summaries["mvs"]
+    assert (s["reused"], s["computed"], s["photometric_computed"], s["photometric_reused"]) == (0, 16, 0, 16)
+
+
 def test_depth_maps_are_reused_when_nothing_they_depend_on_changed(mvs_workspace, small_scene, tmp_path):
     """The mvs output lost, the same config runs mvs again: every view's maps come from the item
     store (``recon status`` says so first), identical to those the first run computed."""

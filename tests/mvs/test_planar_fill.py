@@ -73,9 +73,9 @@ def test_a_region_between_two_surfaces_is_left_alone():
     assert fill_untextured(image, blank, depth, normal, KINV, 0.01) == 0
 
 
-def test_a_planar_rim_whose_normals_disagree_is_left_alone():
+def test_a_planar_rim_seen_edge_on_is_left_alone():
     """An untextured ball's limb is a planar circle, but the surface there is seen edge-on: the rim's own
-    normals, perpendicular to the rays, are not the disc's."""
+    normals lie across the rays."""
     true_depth, _ = plane(0.0, 0.0, 0.2)
     rays = np.stack([U, V, np.ones_like(U)], axis=-1) @ KINV.T
     edge_on = np.cross(rays, [0.0, 0.0, 1.0])
@@ -85,6 +85,20 @@ def test_a_planar_rim_whose_normals_disagree_is_left_alone():
     assert fill_untextured(image, blank, depth, normal, KINV, 0.01) == 0
     blank, depth, normal = measured(image, true_depth, plane(0.0, 0.0, 0.2)[1])
     assert fill_untextured(image, blank, depth, normal, KINV, 0.01) > 0  # the normals alone decided
+
+
+def test_a_face_takes_its_plane_whatever_the_normals_of_the_faces_around_it():
+    """A box face's rim is its edges, where the depths and normals are those of the faces around it, seen
+    from the front (here at 70 degrees from the face's own normal): the face still gets its plane."""
+    true_depth, true_normal = plane(0.0, 0.0, 0.2)
+    turned = np.zeros_like(true_normal)
+    turned[..., 0], turned[..., 2] = np.sin(np.radians(70)), -np.cos(np.radians(70))
+    image = photo((*BOX, 0.4))
+    blank, depth, normal = measured(image, true_depth, turned.astype(np.float32))
+    assert fill_untextured(image, blank, depth, normal, KINV, 0.01) > 0.9 * blank[BOX].sum()
+    inside = depth[BOX] > 0
+    assert inside.mean() > 0.9
+    assert np.max(np.abs(depth[BOX][inside] / true_depth[BOX][inside] - 1)) < 1e-4
 
 
 @pytest.mark.parametrize("shades", [(0.4, 0.55), (0.4, 0.4)])
