@@ -74,8 +74,9 @@ def camera_record(view: ViewCamera, photo=None) -> dict:
     return record
 
 
-#: a new photometric version makes every view's photometric maps again; a new final version only its final
-#: maps (the geometric pass, the filter and the fill: recon.mvs.planar_fill's rules), from the stored
+#: the mvs stage's version since which photometric maps are made as now: a new one (the stage's version
+#: then) makes every view's photometric maps again. A new final version makes only its final maps again
+#: (the geometric pass, the filter and the fill: recon.mvs.planar_fill's rules), from the stored
 #: photometric maps. The mvs stage's own version changes with either.
 PHOTOMETRIC_VERSION = 10
 FINAL_VERSION = 2

@@ -278,10 +278,15 @@ def _save(path: Path, array: np.ndarray) -> None:
 
 
 def _previous_sources(ctx: StageContext, cfg: MvsConfig) -> dict[str, tuple[str, ...]]:
-    """Each view's sources in the newest earlier output of this stage made with the same options."""
+    """Each view's sources in the newest earlier output of this stage made with the same options and
+    photometric maps made as now (a stage version from reuse.PHOTOMETRIC_VERSION on)."""
+    from recon.mvs import reuse
+
     config = to_dict(output_options(cfg))
     for manifest in reversed(ctx.workspace.manifests(Mvs.name)):
-        if (manifest.get("version"), manifest.get("seed"), manifest.get("config")) == (Mvs.version, ctx.seed, config):
+        version = manifest.get("version")
+        if isinstance(version, int) and reuse.PHOTOMETRIC_VERSION <= version <= Mvs.version \
+                and (manifest.get("seed"), manifest.get("config")) == (ctx.seed, config):
             views = read_json(ctx.workspace.output_dir(Mvs.name, manifest.get("key", "")) / VIEWS)
             if isinstance(views, dict):
                 return {name: tuple(v["sources"]) for name, v in views.items()

@@ -78,18 +78,29 @@ def test_an_option_only_the_final_maps_read_reuses_every_photometric_map(mvs_wor
 def test_a_new_final_version_makes_the_final_maps_again_from_the_stored_photometric_ones(mvs_workspace, small_scene,
                                                                                         tmp_path, monkeypatch):
     """A change to the filter or the fill (reuse.FINAL_VERSION, with the stage's version) makes every final
-    map again, not the photometric maps."""
+    map again, not the photometric maps; each view keeps the sources the earlier version's output gave it
+    (here one view's, shortened by one, which it keeps and makes its photometric maps for)."""
+    import json
+
     from recon.mvs import reuse
-    from recon.stages.mvs import Mvs
+    from recon.stages.mvs import VIEWS, Mvs
 
     ws = tmp_path / "ws"
     shutil.copytree(mvs_workspace, ws, symlinks=True)
+    (first,) = manifests(ws, "mvs")
+    record = ws / ".recon" / "cache" / "mvs" / first["key"][:16] / VIEWS
+    views = json.loads(record.read_text())
+    name = next(n for n, v in sorted(views.items()) if len(v["sources"]) >= 3)
+    views[name]["sources"] = views[name]["sources"][:-1]
+    record.write_text(json.dumps(views))
     monkeypatch.setattr(reuse, "FINAL_VERSION", reuse.FINAL_VERSION + 1)
     monkeypatch.setattr(Mvs, "version", Mvs.version + 1)
     result = run_mvs(ws, small_scene)
     assert result.ran == ["mvs"]
     s = result.summaries["mvs"]
-    assert (s["reused"], s["computed"], s["photometric_computed"], s["photometric_reused"]) == (0, 16, 0, 16)
+    assert (s["reused"], s["computed"], s["photometric_computed"], s["photometric_reused"]) == (0, 16, 1, 15)
+    again = json.loads((ws / ".recon" / "cache" / "mvs" / manifests(ws, "mvs")[1]["key"][:16] / VIEWS).read_text())
+    assert again[name]["sources"] == views[name]["sources"]
 
 
 def test_depth_maps_are_reused_when_nothing_they_depend_on_changed(mvs_workspace, small_scene, tmp_path):
