@@ -113,8 +113,9 @@ def views_seeing(scene: SceneInfo, points: np.ndarray, tolerance: float = 0.01) 
     """How many of ``scene``'s regular views see each of ``points`` (N, 3): the point projects into the
     view, and a true depth at its pixel or one of the 8 around it is the point's own within ``tolerance``
     (relative). The neighbours count so that a surface seen at a grazing angle, whose depth changes fast
-    from pixel to pixel, is not missed; near an occluding edge the count can be one too high, not too low.
-    Pinhole views only (a fisheye or 360 view's map holds ranges: ValueError)."""
+    from pixel to pixel, is not missed: the count errs high (near an occluding edge a view that does not
+    see the point can count), so a share of the surface it gives is an upper bound. Pinhole views only (a
+    fisheye or 360 view's map holds ranges: ValueError)."""
     from recon.synth.wide import load_views
 
     if load_views(scene.root):
