@@ -27,7 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from recon._open3d import open3d
-from recon.geometry.transforms import backproject
+from recon.geometry.transforms import backproject, project
 from recon.synth.dataset import SceneInfo
 
 log = logging.getLogger(__name__)
@@ -124,12 +124,10 @@ def views_seeing(scene: SceneInfo, points: np.ndarray, tolerance: float = 0.01) 
     for name, cam in scene.cameras().items():
         truth = scene.depth(name)
         height, width = truth.shape
-        local = points @ cam.R.T + cam.t
-        z = local[:, 2]
-        front = np.nonzero(z > 0)[0]
-        pix = local[front] @ cam.K.T
-        u = np.floor(pix[:, 0] / pix[:, 2]).astype(np.int64)
-        v = np.floor(pix[:, 1] / pix[:, 2]).astype(np.int64)
+        uv, z = project(cam.K, cam.R, cam.t, points)
+        front = np.flatnonzero(z > 0)
+        u = np.floor(uv[front, 0]).astype(np.int64)
+        v = np.floor(uv[front, 1]).astype(np.int64)
         inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
         front, u, v = front[inside], u[inside], v[inside]
         seen = np.zeros(len(front), bool)
