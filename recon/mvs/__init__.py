@@ -3,6 +3,7 @@
 ``views.select_problems`` picks source views and depth ranges from a sparse model;
 ``stereo.photometric_view`` / ``stereo.geometric_view`` compute one view's maps in COLMAP's layout;
 ``patchmatch`` holds the algorithm; ``planar_fill`` gives untextured regions the plane around them;
+``background`` takes the depths a surface's edge lent the sky beside it;
 ``colmap_io`` reads and writes COLMAP's ``.bin`` maps;
 ``bench`` measures speed and accuracy.
 

@@ -76,16 +76,17 @@ def camera_record(view: ViewCamera, photo=None) -> dict:
 
 #: the mvs stage's version since which photometric maps are made as now: a new one (the stage's version
 #: then) makes every view's photometric maps again. A new final version makes only its final maps again
-#: (the geometric pass, the filter and the fill: recon.mvs.planar_fill's rules), from the stored
+#: (the geometric pass, the filter, the background clearing and the fill), from the stored
 #: photometric maps. The mvs stage's own version changes with either.
 PHOTOMETRIC_VERSION = 10
 FINAL_VERSION = 2
 
-#: the options only the geometric pass, the filter and the fill read: they key a view's final maps, not
-#: its photometric ones, so changing one runs the final part again from the stored photometric maps
+#: the options only the geometric pass, the filter, the background clearing and the fill read: they key a
+#: view's final maps, not its photometric ones, so changing one runs the final part again from the stored
+#: photometric maps
 FINAL_ONLY = ("geometric", "geometric_iterations", "geometric_weight", "geometric_max_error", "filter_max_cost",
               "filter_min_consistent", "filter_max_reprojection", "filter_max_depth_error",
-              "filter_grazing_allowance", "planar_fill")
+              "filter_grazing_allowance", "planar_fill", "clear_background")
 
 
 def _options(options: MVSOptions, final: bool) -> dict:

@@ -30,6 +30,7 @@ import numpy as np
 import pycolmap
 
 from recon.mvs import patchmatch
+from recon.mvs.background import clear_background
 from recon.mvs.colmap_io import read_depth_map, read_normal_map, write_map
 from recon.mvs.options import MVSOptions
 from recon.mvs.planar_fill import fill_untextured
@@ -127,9 +128,14 @@ def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
         else:
             state = patchmatch.photometric_costs(view, state, options)
         fill = options.planar_fill and options.min_texture > 0
-        blank = patchmatch.untextured(view.level.ref, options) if fill else None
+        clear = options.clear_background and options.min_texture > 0
+        blank = patchmatch.untextured(view.level.ref, options) if fill or clear else None
         state = patchmatch.filter_depth(view, state, options, blank)
         depth, normal = state.depth, state.normal
+        if clear:
+            cleared = clear_background(view.level.ref, blank, depth, normal, options)
+            log.debug("%s: %d pixels beside the sky or a backdrop, of its shade, lost their depth", problem.ref,
+                      cleared)
         if fill:
             filled = fill_untextured(view.level.ref, blank, depth, normal, view.level.geometry.kinv,
                                      options.filter_max_depth_error)

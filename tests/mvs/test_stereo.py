@@ -107,6 +107,27 @@ def test_a_patch_painted_flat_on_a_plane_gets_that_plane_back_from_the_planar_fi
     assert np.mean(np.abs(maps[True][added] / truth[added] - 1) < 0.01) >= 0.95
 
 
+def test_the_sky_keeps_none_of_the_depths_the_ground_carried_onto_it(stereo, tmp_path):
+    """Sky pixels beside the ground's edge that kept its depth lose it (recon.mvs.background); the depths
+    on the true surface stay as they were."""
+    root, _ = stereo
+    dense = root / "dense"
+    problem = next(p for p in select_problems(pycolmap.Reconstruction(dense / "sparse")) if p.ref == "view_002.jpg")
+    maps = {}
+    for clear in (False, True):
+        out = tmp_path / f"stereo-{clear}"
+        shutil.copytree(dense / "stereo", out)
+        geometric_view(dense, problem, replace(MVSOptions(), clear_background=clear), out)
+        maps[clear] = read_depth_map(map_path(out, "depth", problem.ref, "geometric"))
+    sky = load_scene(root / "scene").depth(problem.ref) <= 0
+    on_sky = {clear: np.count_nonzero((depth > 0) & sky) for clear, depth in maps.items()}
+    on_surface = {clear: np.count_nonzero((depth > 0) & ~sky) for clear, depth in maps.items()}
+    assert on_sky[False] > 500 and on_sky[True] <= 0.5 * on_sky[False]  # 717 -> 324
+    assert on_surface[True] >= 0.998 * on_surface[False]
+    kept = maps[True] > 0
+    np.testing.assert_array_equal(maps[True][kept], maps[False][kept])
+
+
 def _fuse(dense):
     """COLMAP's fusion of the geometric maps of ``dense``: points (N, 3) and normals (N, 3)."""
     pycolmap.stereo_fusion(dense / "fused.ply", dense, input_type="geometric", output_type="PLY")
