@@ -14,6 +14,16 @@ REPO = Path(__file__).resolve().parents[1]
 SPARSE_TEST = REPO / "tests" / "sparse_test.yaml"
 
 
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    """A test's captured output with the surrogates of a file name that is not UTF-8 (logged in the test's own
+    process) escaped: pytest-xdist's workers send reports as UTF-8, and a lone surrogate stops the worker."""
+    report = yield
+    report.sections = [(title, text.encode("utf-8", "backslashreplace").decode("utf-8"))
+                       for title, text in report.sections]
+    return report
+
+
 @pytest.fixture(scope="session")
 def small_scene(tmp_path_factory) -> Path:
     """16 views, 320x240, of the synthetic scene (images/ and gt/)."""
