@@ -7,7 +7,7 @@ of the window (the samples of its shade) is flat; the few pixels nearest the edg
 variation there (JPEG's ringing around the edge: 0.006-0.013 against the 0.005 floor on the zoo's
 clean skies) and keep their depth. Seen at a grazing angle, as a horizon always is, those few pixels
 are a long strip in space: on the zoo's ground squares against a flat sky, the mesh ran on past the
-ground's edge, a tenth of its area (fence_poles, noisy_phone, transient_car).
+ground's edge, up to a tenth of its area (fence_poles, noisy_phone, transient_car).
 
 So a depth map loses its depths within the matching window's radius of the background where the
 pixel's intensity lies within ``sigma_color / 2`` of the nearest background pixel's (the shade

@@ -81,6 +81,17 @@ def _flat_patch(root, name: str, size=(40, 60), margin=6) -> tuple[slice, slice]
     raise AssertionError("no planar patch in the test scene")
 
 
+def _final_maps(dense, problem, tmp_path, option: str) -> dict[bool, np.ndarray]:
+    """The view's final depth map made again from the stored photometric maps, with ``option`` off and on."""
+    maps = {}
+    for on in (False, True):
+        out = tmp_path / f"stereo-{on}"
+        shutil.copytree(dense / "stereo", out)
+        geometric_view(dense, problem, replace(MVSOptions(), **{option: on}), out)
+        maps[on] = read_depth_map(map_path(out, "depth", problem.ref, "geometric"))
+    return maps
+
+
 def test_a_patch_painted_flat_on_a_plane_gets_that_plane_back_from_the_planar_fill(stereo, tmp_path):
     """The reference photo's patch painted in one colour loses its depths to the filter; the fill gives them
     back on the true surface, and changes no other depth."""
@@ -92,12 +103,7 @@ def test_a_patch_painted_flat_on_a_plane_gets_that_plane_back_from_the_planar_fi
     image = cv2.imread(str(dense / "images" / problem.ref))
     image[rows, cols] = image[rows, cols].reshape(-1, 3).mean(axis=0)
     cv2.imwrite(str(dense / "images" / problem.ref), image, [cv2.IMWRITE_JPEG_QUALITY, 100])
-    maps = {}
-    for fill in (False, True):
-        out = tmp_path / f"stereo-{fill}"
-        shutil.copytree(dense / "stereo", out)
-        geometric_view(dense, problem, replace(MVSOptions(), planar_fill=fill), out)
-        maps[fill] = read_depth_map(map_path(out, "depth", problem.ref, "geometric"))
+    maps = _final_maps(dense, problem, tmp_path, "planar_fill")
     kept = maps[False] > 0
     assert not kept[rows, cols][8:-8, 8:-8].any()  # the filter took the patch's depths
     np.testing.assert_array_equal(maps[True][kept], maps[False][kept])
@@ -113,12 +119,7 @@ def test_the_sky_keeps_none_of_the_depths_the_ground_carried_onto_it(stereo, tmp
     root, _ = stereo
     dense = root / "dense"
     problem = next(p for p in select_problems(pycolmap.Reconstruction(dense / "sparse")) if p.ref == "view_002.jpg")
-    maps = {}
-    for clear in (False, True):
-        out = tmp_path / f"stereo-{clear}"
-        shutil.copytree(dense / "stereo", out)
-        geometric_view(dense, problem, replace(MVSOptions(), clear_background=clear), out)
-        maps[clear] = read_depth_map(map_path(out, "depth", problem.ref, "geometric"))
+    maps = _final_maps(dense, problem, tmp_path, "clear_background")
     sky = load_scene(root / "scene").depth(problem.ref) <= 0
     on_sky = {clear: np.count_nonzero((depth > 0) & sky) for clear, depth in maps.items()}
     on_surface = {clear: np.count_nonzero((depth > 0) & ~sky) for clear, depth in maps.items()}
