@@ -13,8 +13,6 @@ W, H = 160, 120
 RADIUS, SHADE = MVSOptions().window_radius, MVSOptions().sigma_color / 2
 HORIZON = 40  # rows above it: sky
 SKY = 0.8
-
-
 #: the sky's rows nearest the edge that ripple
 FRINGE = 3
 

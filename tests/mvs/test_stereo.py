@@ -113,9 +113,9 @@ def test_a_patch_painted_flat_on_a_plane_gets_that_plane_back_from_the_planar_fi
     assert np.mean(np.abs(maps[True][added] / truth[added] - 1) < 0.01) >= 0.95
 
 
-def test_the_sky_keeps_none_of_the_depths_the_ground_carried_onto_it(stereo, tmp_path):
-    """Sky pixels beside the ground's edge that kept its depth lose it (recon.mvs.background); the depths
-    on the true surface stay as they were."""
+def test_the_sky_loses_most_of_the_depths_the_ground_carried_onto_it(stereo, tmp_path):
+    """Sky pixels beside the ground's edge of its shade lose the ground's depth (recon.mvs.background); the
+    depths on the true surface stay as they were."""
     root, _ = stereo
     dense = root / "dense"
     problem = next(p for p in select_problems(pycolmap.Reconstruction(dense / "sparse")) if p.ref == "view_002.jpg")
