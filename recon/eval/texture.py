@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from recon.imaging.pixels import sample_bilinear
 from recon.surface.raycast import render_ids, scene_of
 from recon.surface.texture import TexturedMesh
-from recon.surface.texture.raster import sample_bilinear
 from recon.surface.texture.topology import face_adjacency
 
 

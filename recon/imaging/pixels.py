@@ -2,6 +2,8 @@
 
 Images at the API surface are uint8 or uint16, HxW (gray) or HxWx3 (RGB). Kernels work on float32
 in [0, 1]; :func:`to_float` and :func:`from_float` are the one conversion in each direction.
+:func:`sample_bilinear` is the bilinear lookup at continuous pixel coordinates that array code shares
+(texturing, the depth maps' silhouette check, evaluation; numba kernels inline their own).
 """
 
 from __future__ import annotations
@@ -65,3 +67,21 @@ def with_lab_lightness(lightness: np.ndarray, lab: np.ndarray | None, dtype: np.
     lab = lab.copy()
     lab[..., 0] = np.clip(lightness, 0.0, 1.0) * np.float32(100.0)
     return from_float(np.clip(cv2.cvtColor(lab, cv2.COLOR_LAB2RGB), 0.0, 1.0), dtype)
+
+
+def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Bilinear lookup of ``image`` (H, W[, C]) at continuous pixel coordinates (pixel centres at +0.5);
+    coordinates outside are clamped to the border."""
+    h, w = image.shape[:2]
+    fx = np.clip(np.asarray(x, np.float64) - 0.5, 0, w - 1)
+    fy = np.clip(np.asarray(y, np.float64) - 0.5, 0, h - 1)
+    x0 = np.minimum(np.floor(fx).astype(np.int64), w - 2 if w > 1 else 0)
+    y0 = np.minimum(np.floor(fy).astype(np.int64), h - 2 if h > 1 else 0)
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    ax, ay = fx - x0, fy - y0
+    if image.ndim == 3:
+        ax, ay = ax[..., None], ay[..., None]
+    img = image.astype(np.float32, copy=False)
+    top = img[y0, x0] * (1 - ax) + img[y0, x1] * ax
+    bottom = img[y1, x0] * (1 - ax) + img[y1, x1] * ax
+    return top * (1 - ay) + bottom * ay

@@ -81,12 +81,12 @@ def camera_record(view: ViewCamera, photo=None) -> dict:
 PHOTOMETRIC_VERSION = 10
 FINAL_VERSION = 2
 
-#: the options only the geometric pass, the filter, the background clearing and the fill read: they key a
-#: view's final maps, not its photometric ones, so changing one runs the final part again from the stored
-#: photometric maps
+#: the options only the geometric pass, the filter, the silhouette check, the background clearing and the fill
+#: read: they key a view's final maps, not its photometric ones, so changing one runs the final part again
+#: from the stored photometric maps
 FINAL_ONLY = ("geometric", "geometric_iterations", "geometric_weight", "geometric_max_error", "filter_max_cost",
               "filter_min_consistent", "filter_max_reprojection", "filter_max_depth_error",
-              "filter_grazing_allowance", "planar_fill", "clear_background")
+              "filter_grazing_allowance", "planar_fill", "clear_background", "drop_fattened")
 
 
 def _options(options: MVSOptions, final: bool) -> dict:

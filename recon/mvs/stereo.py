@@ -32,6 +32,7 @@ import pycolmap
 from recon.mvs import patchmatch
 from recon.mvs.background import clear_background
 from recon.mvs.colmap_io import read_depth_map, read_normal_map, write_map
+from recon.mvs.fattening import drop_fattened
 from recon.mvs.options import MVSOptions
 from recon.mvs.planar_fill import fill_untextured
 from recon.mvs.views import Problem, ViewCamera, select_problems
@@ -132,6 +133,9 @@ def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
         blank = patchmatch.untextured(view.level.ref, options) if fill or clear else None
         state = patchmatch.filter_depth(view, state, options, blank)
         depth, normal = state.depth, state.normal
+        if options.drop_fattened:
+            dropped = drop_fattened(ref, ref_cam, depth, normal, srcs, src_cams, src_depths, options)
+            log.debug("%s: %d pixels beside a silhouette lost the foreground's depth", problem.ref, dropped)
         if clear:
             cleared = clear_background(view.level.ref, blank, depth, normal, options)
             log.debug("%s: %d pixels beside the sky or a backdrop, of its shade, lost their depth", problem.ref,

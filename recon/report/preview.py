@@ -82,8 +82,9 @@ def _bake(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, size: tuple[i
     from scipy import ndimage
 
     from recon._open3d import open3d
+    from recon.imaging.pixels import sample_bilinear
     from recon.surface.raycast import scene_of
-    from recon.surface.texture.raster import rasterize, sample_bilinear
+    from recon.surface.texture.raster import rasterize
 
     width, height = size
     corners = uv[faces] * [width, -height] + [0, height]  # texel coordinates, y down

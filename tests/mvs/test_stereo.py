@@ -129,6 +129,24 @@ def test_the_sky_loses_most_of_the_depths_the_ground_carried_onto_it(stereo, tmp
     np.testing.assert_array_equal(maps[True][kept], maps[False][kept])
 
 
+def test_the_background_beside_a_silhouette_loses_the_foreground_depth_carried_onto_it(stereo, tmp_path):
+    """Depths off the true surface beside a depth edge go (recon.mvs.fattening); nearly all correct ones stay."""
+    root, _ = stereo
+    dense = root / "dense"
+    problem = next(p for p in select_problems(pycolmap.Reconstruction(dense / "sparse")) if p.ref == "view_002.jpg")
+    maps = _final_maps(dense, problem, tmp_path, "drop_fattened")
+    truth = load_scene(root / "scene").depth(problem.ref)
+    on_surface = truth > 0
+    scale = np.median(truth[(maps[False] > 0) & on_surface] / maps[False][(maps[False] > 0) & on_surface])
+    error = {on: np.abs(d * scale / np.where(on_surface, truth, np.inf) - 1) for on, d in maps.items()}
+    off = {on: np.count_nonzero((d > 0) & on_surface & (error[on] > 0.01)) for on, d in maps.items()}
+    right = {on: np.count_nonzero((d > 0) & (error[on] <= 0.01)) for on, d in maps.items()}
+    assert off[False] - off[True] >= 150  # 2540 -> 2353
+    assert off[False] - off[True] >= 2 * (right[False] - right[True])  # 49926 -> 49874
+    kept = maps[True] > 0
+    np.testing.assert_array_equal(maps[True][kept], maps[False][kept])
+
+
 def _fuse(dense):
     """COLMAP's fusion of the geometric maps of ``dense``: points (N, 3) and normals (N, 3)."""
     pycolmap.stereo_fusion(dense / "fused.ply", dense, input_type="geometric", output_type="PLY")

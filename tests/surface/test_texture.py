@@ -5,10 +5,10 @@ import pytest
 from surface_scene import with_gains
 
 from recon.eval.texture import masked_psnr, render, seam_jump
+from recon.imaging.pixels import sample_bilinear
 from recon.surface.options import TextureOptions
 from recon.surface.raycast import render_ids, scene_of
 from recon.surface.texture import texture_mesh
-from recon.surface.texture.raster import sample_bilinear
 
 
 @pytest.fixture(scope="module")

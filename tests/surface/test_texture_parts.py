@@ -8,9 +8,10 @@ import trimesh
 from PIL import Image
 
 from recon.eval.texture import masked_psnr, seam_jump
+from recon.imaging.pixels import sample_bilinear
 from recon.surface.texture.atlas import pack
 from recon.surface.texture.model import TexturedMesh
-from recon.surface.texture.raster import rasterize, sample_bilinear
+from recon.surface.texture.raster import rasterize
 from recon.surface.texture.selection import data_costs, energy, select_views
 
 

@@ -13,8 +13,9 @@ from scipy import ndimage
 from scipy.sparse.linalg import spsolve
 
 from recon.geometry.transforms import project
+from recon.imaging.pixels import sample_bilinear
 from recon.surface.texture.atlas import FILL_BLOCK, Layout
-from recon.surface.texture.raster import rasterize, sample_bilinear
+from recon.surface.texture.raster import rasterize
 from recon.surface.texture.views import unobstructed
 
 log = logging.getLogger(__name__)

@@ -18,8 +18,8 @@ import numba
 import numpy as np
 from scipy import ndimage
 
+from recon.imaging.pixels import sample_bilinear
 from recon.surface.texture.atlas import Layout
-from recon.surface.texture.raster import sample_bilinear
 from recon.surface.texture.views import unobstructed
 
 log = logging.getLogger(__name__)

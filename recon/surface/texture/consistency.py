@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from recon.geometry.transforms import project
-from recon.surface.texture.raster import sample_bilinear
+from recon.imaging.pixels import sample_bilinear
 
 log = logging.getLogger(__name__)
 

@@ -19,8 +19,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import splu
 
+from recon.imaging.pixels import sample_bilinear
 from recon.surface.indexing import unique_rows
-from recon.surface.texture.raster import sample_bilinear
 from recon.surface.texture.views import unobstructed
 
 log = logging.getLogger(__name__)

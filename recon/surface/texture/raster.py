@@ -1,4 +1,5 @@
-"""Triangle rasterisation into texel grids and bilinear lookups (pixel centres at +0.5, as in COLMAP)."""
+"""Triangle rasterisation into texel grids (pixel centres at +0.5, as in COLMAP); bilinear lookups are
+:func:`recon.imaging.pixels.sample_bilinear`."""
 
 from __future__ import annotations
 
@@ -42,21 +43,3 @@ def rasterize(tri: np.ndarray, ids: np.ndarray, height: int, width: int) -> tupl
     if len(tri):
         _rasterize(np.ascontiguousarray(tri, np.float64), np.ascontiguousarray(ids, np.int64), face_map, bary)
     return face_map, bary
-
-
-def sample_bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear lookup of ``image`` (H, W[, C]) at continuous pixel coordinates (pixel centres at +0.5);
-    coordinates outside are clamped to the border."""
-    h, w = image.shape[:2]
-    fx = np.clip(np.asarray(x, np.float64) - 0.5, 0, w - 1)
-    fy = np.clip(np.asarray(y, np.float64) - 0.5, 0, h - 1)
-    x0 = np.minimum(np.floor(fx).astype(np.int64), w - 2 if w > 1 else 0)
-    y0 = np.minimum(np.floor(fy).astype(np.int64), h - 2 if h > 1 else 0)
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    ax, ay = fx - x0, fy - y0
-    if image.ndim == 3:
-        ax, ay = ax[..., None], ay[..., None]
-    img = image.astype(np.float32, copy=False)
-    top = img[y0, x0] * (1 - ax) + img[y0, x1] * ax
-    bottom = img[y1, x0] * (1 - ax) + img[y1, x1] * ax
-    return top * (1 - ay) + bottom * ay

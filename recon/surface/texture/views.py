@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from recon.geometry.transforms import camera_center, project
-from recon.surface.texture.raster import sample_bilinear
+from recon.imaging.pixels import sample_bilinear
 
 log = logging.getLogger(__name__)
 
