@@ -28,6 +28,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from recon.geometry.transforms import backproject, project
 from recon.imaging.pixels import sample_bilinear
 from recon.mvs.options import MVSOptions
 from recon.mvs.patchmatch import Camera
@@ -59,8 +60,7 @@ def drop_fattened(ref: np.ndarray, ref_cam: Camera, depth: np.ndarray, normal: n
     gradient = np.hypot(gx, gy)[ys, xs]
     mine = ref_mean[ys, xs]
     z = depth[ys, xs].astype(np.float64)
-    rays = np.linalg.inv(ref_cam.K) @ np.stack([xs + 0.5, ys + 0.5, np.ones(len(xs))])
-    world = ref_cam.R.T @ (rays * z - ref_cam.t[:, None])
+    world = backproject(ref_cam.K, ref_cam.R, ref_cam.t, np.column_stack([xs + 0.5, ys + 0.5]), z)
     footprint = z / ref_cam.K[0, 0]
     differences = np.full((len(srcs), len(xs)), np.nan)
     for s, (image, cam, src_depth) in enumerate(zip(srcs, src_cams, src_depths)):
@@ -98,15 +98,13 @@ def _confirmed_sample(world: np.ndarray, footprint: np.ndarray, image: np.ndarra
     at the point's pixel within ``max_depth_error`` of the point's); and the source's intensity there
     (bilinear)."""
     height, width = src_depth.shape
-    local = cam.R @ world + cam.t[:, None]
-    z = local[2]
+    pixel, z = project(cam.K, cam.R, cam.t, world)
     scale = z / cam.K[0, 0] / footprint
-    pixel = (cam.K @ local)[:2] / np.where(z > 0, z, 1.0)
-    u, v = pixel[0] - 0.5, pixel[1] - 0.5
+    u, v = pixel[:, 0] - 0.5, pixel[:, 1] - 0.5
     inside = (z > 0) & (u >= 0) & (v >= 0) & (u <= width - 1) & (v <= height - 1)
     rows = np.rint(np.clip(v, 0, height - 1)).astype(np.int64)
     cols = np.rint(np.clip(u, 0, width - 1)).astype(np.int64)
     there = src_depth[rows, cols]
     confirmed = inside & (there > 0) & (np.abs(there - z) <= max_depth_error * z)
     confirmed &= (scale < MAX_SCALE) & (scale > 1 / MAX_SCALE)
-    return confirmed, sample_bilinear(image, pixel[0], pixel[1])
+    return confirmed, sample_bilinear(image, pixel[:, 0], pixel[:, 1])
