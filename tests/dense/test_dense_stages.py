@@ -161,7 +161,7 @@ def test_the_mesh_is_built_from_a_cloud_fused_at_its_own_reprojection_error(dens
 
 
 def test_each_cloud_merges_pixels_within_its_own_tolerances(dense_workspace, small_scene, tmp_path):
-    """dense/fused.ply merges pixels within fusion.max_depth_error 0.02 and max_normal_error 20 degrees, the
+    """dense/fused.ply merges pixels within fusion.max_depth_error 0.03 and max_normal_error 60 degrees, the
     mesh's cloud within mesh_depth_error 0.01 and mesh_normal_error 10: with both clouds at one reprojection
     error, the mesh still gets its own cloud; with every tolerance equal, there is no second cloud and the
     mesh takes dense/fused.ply."""
@@ -176,13 +176,13 @@ def test_each_cloud_merges_pixels_within_its_own_tolerances(dense_workspace, sma
     assert done.returncode == 0, done.stderr
     folder = _newest(ws / ".recon" / "cache" / "fusion").parent
     log = (ws / ".recon" / "recon.log").read_text()
-    delivered = re.findall(r"fusion: (\d+) points within 0\.50 px, 0\.02 of the depth and 20 degrees into fused\.ply", log)
+    delivered = re.findall(r"fusion: (\d+) points within 0\.50 px, 0\.03 of the depth and 60 degrees into fused\.ply", log)
     meshed = re.findall(r"fusion: (\d+) points within 0\.50 px, 0\.01 of the depth and 10 degrees into meshing\.ply",
                         log)
     assert delivered and meshed
     assert int(meshed[-1]) == vertex_count(folder / "meshing.ply") != vertex_count(folder / "fused.ply")
-    done = run_cli(ws, small_scene, "fusion.mesh_reproj_error=0.5", "fusion.mesh_depth_error=0.02",
-                   "fusion.mesh_normal_error=20", flags=("--until", "fusion"))
+    done = run_cli(ws, small_scene, "fusion.mesh_reproj_error=0.5", "fusion.mesh_depth_error=0.03",
+                   "fusion.mesh_normal_error=60", flags=("--until", "fusion"))
     assert done.returncode == 0, done.stderr
     folder = _newest(ws / ".recon" / "cache" / "fusion").parent
     assert (folder / "fused.ply").exists() and not (folder / "meshing.ply").exists()
