@@ -22,11 +22,12 @@ observable surface only one photo sees (:func:`seen_twice`).
   and mesh are scored against the masked object alone (against the whole scene, the room and the
   table the masks keep out counted as missing: fused F@0.2 % 0.014).
 
-Results go to ``<out>/quality.json`` (figures per scene and the summary), so two runs can be
-compared. Scenes render once into ``<out>/quality/<scene>/scene`` and are reused while their
+Results go to ``<out>/quality.json`` (figures per scene and the summary); ``--compare BEFORE AFTER``
+prints two such files side by side (:func:`compare`). Scenes render once into ``<out>/quality/<scene>/scene`` and are reused while their
 size, view count and definition (``recon.synth.zoo.zoo_digest``) match.
 
     python -m recon.bench --only quality [--scenes a,b] [--size 640x480] [--views N] [-o key=value]...
+    python -m recon.quality_bench --compare before/quality.json after/quality.json
 """
 
 from __future__ import annotations
@@ -196,6 +197,44 @@ def summary(rows: list[dict]) -> dict:
                                                                                       if "error" in r]}
 
 
+#: The largest move of one scene's figure that changing ``mvs.seed`` alone made, rounded up (0 -> 1, five
+#: zoo scenes at 640x480, docs/DECISIONS.md): PatchMatch starts from random planes, so a change to the depth maps
+#: that moves a scene by less is not told from chance by one run. Changes after the mvs stage, on the
+#: same depth maps, are deterministic.
+SEED_SPREAD = {"fused@0.002": 0.001, "mesh@0.002": 0.004, "psnr": 0.25, "psnr_gain": 0.3, "coverage": 0.013}
+COMPARED = (("fused@0.002", "fusedF.2", ".4f"), ("mesh@0.002", "meshF.2", ".4f"), ("psnr", "texPSNR", ".2f"),
+            ("psnr_gain", "tex-vc", ".2f"), ("coverage", "cover", ".4f"))
+
+
+def compare(before: dict, after: dict) -> None:
+    """Print two quality.json results side by side: per scene both have, then mean and worst over those
+    scenes, and how many scenes each figure moved up and down, at all and by more than :data:`SEED_SPREAD`."""
+    names = [r["scene"] for r in after["scenes"] if r["scene"] in {b["scene"] for b in before["scenes"]}]
+    runs = [[next(r for r in run["scenes"] if r["scene"] == n) for n in names] for run in (before, after)]
+    alone = sorted({r["scene"] for run in (before, after) for r in run["scenes"]} - set(names))
+    if alone:
+        print(f"left out, in one run only: {', '.join(alone)}")
+    print(f"{'scene':<16}" + "".join(f"{label:>18}" for _, label, _ in COMPARED))
+    columns = [[summary([r])["mean"] for r in rows] for rows in runs]
+    for name, b, a in zip(names, *columns):
+        print(f"{name:<16}" + "".join(_moved(b.get(key), a.get(key), fmt) for key, _, fmt in COMPARED))
+    for which in ("mean", "worst"):
+        b, a = (summary(rows)[which] for rows in runs)
+        print(f"{which + f' ({len(names)})':<16}" + "".join(_moved(b.get(key), a.get(key), fmt) for key, _, fmt in COMPARED))
+    for label, steps in (("at all", dict.fromkeys(SEED_SPREAD, 1e-4)), ("by more than the seed does", SEED_SPREAD)):
+        counts = []
+        for key, name, _ in COMPARED:
+            pairs = [(b[key], a[key]) for b, a in zip(*columns) if key in b and key in a]
+            up, down = (sum(a > b + steps[key] for b, a in pairs), sum(a < b - steps[key] for b, a in pairs))
+            counts.append(f"{name} {up}/{down}")
+        print(f"scenes up/down {label}: " + ", ".join(counts))
+
+
+def _moved(before: float | None, after: float | None, fmt: str) -> str:
+    text = " -> ".join("-" if v is None else format(v, fmt) for v in (before, after))
+    return f"{text:>18}"
+
+
 def print_table(rows: list[dict], summ: dict) -> None:
     stages = [s for s in STAGES if any(s in r.get("seconds", {}) for r in rows)]
     short = {"preprocess": "prep", "features": "feat", "matching": "match", "undistort": "undist",
@@ -241,7 +280,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, default=CONFIG, help="pipeline config (default pipelines/full.yaml)")
     parser.add_argument("-o", "--override", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--out", type=Path, default=REPO / "bench_out")
+    parser.add_argument("--compare", nargs=2, type=Path, metavar=("BEFORE", "AFTER"),
+                        help="print two quality.json results side by side and run nothing")
     args = parser.parse_args(argv)
+    if args.compare:
+        return _compare_files(*args.compare)
     names = [n.strip() for n in args.scenes.split(",") if n.strip()]
     unknown = [n for n in names if n not in SCENES]
     if unknown:
@@ -267,6 +310,23 @@ def main(argv: list[str] | None = None) -> int:
                                     "size": [width, height], "scenes": rows, "summary": summary(rows)}, indent=1))
     print_table(rows, summary(rows))
     print(f"results: {path}")
+    return 0
+
+
+def _compare_files(before: Path, after: Path) -> int:
+    runs = []
+    for path in (before, after):
+        try:
+            runs.append(json.loads(path.read_text()))
+        except (OSError, ValueError) as e:
+            print(f"bench: --compare: cannot read {path} ({e}); give two quality.json files of "
+                  "make bench-quality", file=sys.stderr)
+            return 2
+        if not isinstance(runs[-1], dict) or "scenes" not in runs[-1]:
+            print(f"bench: --compare: {path} holds no zoo results (no 'scenes'); give a quality.json of "
+                  "make bench-quality", file=sys.stderr)
+            return 2
+    compare(*runs)
     return 0
 
 

@@ -65,3 +65,27 @@ def test_the_table_prints_maxf_where_it_was_measured(capsys):
     lines = capsys.readouterr().out.splitlines()
     assert "maxF" in lines[0]
     assert f"{1.6 / 1.8:.3f}" in next(line for line in lines if line.startswith("a "))
+
+
+def test_compare_prints_both_runs_and_counts_moves_beyond_the_seed(tmp_path, capsys):
+    before = {"scenes": [_row("a", 0.90, 0.80, 26.0, 22.0, 0.99), _row("b", 0.70, 0.60, 24.0, 23.0, 0.95),
+                         _row("gone", 0.5, 0.5, 20.0, 20.0, 0.9)]}
+    after = {"scenes": [_row("a", 0.95, 0.80, 26.1, 22.0, 0.99), _row("b", 0.6995, 0.65, 24.0, 23.0, 0.90)]}
+    paths = [tmp_path / "before.json", tmp_path / "after.json"]
+    for path, run in zip(paths, (before, after)):
+        path.write_text(json.dumps(run))
+    assert quality_bench.main(["--compare", *map(str, paths)]) == 0
+    out = capsys.readouterr().out
+    assert "left out, in one run only: gone" in out
+    assert "0.9000 -> 0.9500" in next(line for line in out.splitlines() if line.startswith("a "))
+    assert "0.7000 -> 0.7250" in next(line for line in out.splitlines() if line.startswith("mean (2)"))  # mesh
+    # b's fused F moved by .0005: a move, but not one beyond what the seed alone does; a's by .05 is
+    assert "up/down at all: fusedF.2 1/1, meshF.2 1/0" in out
+    assert "by more than the seed does: fusedF.2 1/0, meshF.2 1/0, texPSNR 0/0, tex-vc 0/0, cover 0/1" in out
+
+
+def test_compare_refuses_a_file_that_is_not_a_bench_result(tmp_path, capsys):
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"points": 3}))
+    assert quality_bench.main(["--compare", str(other), str(other)]) == 2
+    assert "other.json holds no zoo results" in capsys.readouterr().err
