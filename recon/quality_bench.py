@@ -23,8 +23,9 @@ observable surface only one photo sees (:func:`seen_twice`).
   table the masks keep out counted as missing: fused F@0.2 % 0.014).
 
 Results go to ``<out>/quality.json`` (figures per scene and the summary); ``--compare BEFORE AFTER``
-prints two such files side by side (:func:`compare`). Scenes render once into ``<out>/quality/<scene>/scene`` and are reused while their
-size, view count and definition (``recon.synth.zoo.zoo_digest``) match.
+prints two such files side by side (:func:`compare`). Scenes render once into
+``<out>/quality/<scene>/scene`` and are reused while their size, view count and definition
+(``recon.synth.zoo.zoo_digest``) match.
 
     python -m recon.bench --only quality [--scenes a,b] [--size 640x480] [--views N] [-o key=value]...
     python -m recon.quality_bench --compare before/quality.json after/quality.json
@@ -197,10 +198,10 @@ def summary(rows: list[dict]) -> dict:
                                                                                       if "error" in r]}
 
 
-#: The largest move of one scene's figure that changing ``mvs.seed`` alone made, rounded up (0 -> 1, five
-#: zoo scenes at 640x480, docs/DECISIONS.md): PatchMatch starts from random planes, so a change to the depth maps
-#: that moves a scene by less is not told from chance by one run. Changes after the mvs stage, on the
-#: same depth maps, are deterministic.
+#: The largest move of one scene's figure that changing ``mvs.seed`` alone made, rounded up (0 -> 1, zoo
+#: scenes at 640x480, docs/DECISIONS.md): PatchMatch starts from random planes, so a change to the depth
+#: maps that moves a scene by less is not told from chance by one run. Changes after the mvs stage, on
+#: the same depth maps, are deterministic.
 SEED_SPREAD = {"fused@0.002": 0.001, "mesh@0.002": 0.004, "psnr": 0.25, "psnr_gain": 0.3, "coverage": 0.013}
 COMPARED = (("fused@0.002", "fusedF.2", ".4f"), ("mesh@0.002", "meshF.2", ".4f"), ("psnr", "texPSNR", ".2f"),
             ("psnr_gain", "tex-vc", ".2f"), ("coverage", "cover", ".4f"))
@@ -322,8 +323,8 @@ def _compare_files(before: Path, after: Path) -> int:
             print(f"bench: --compare: cannot read {path} ({e}); give two quality.json files of "
                   "make bench-quality", file=sys.stderr)
             return 2
-        if not isinstance(runs[-1], dict) or "scenes" not in runs[-1]:
-            print(f"bench: --compare: {path} holds no zoo results (no 'scenes'); give a quality.json of "
+        if not isinstance(runs[-1], dict) or not all("scene" in row for row in runs[-1].get("scenes", [{}])):
+            print(f"bench: --compare: {path} holds no zoo results; give a quality.json of "
                   "make bench-quality", file=sys.stderr)
             return 2
     compare(*runs)
