@@ -210,18 +210,18 @@ COMPARED = (("fused@0.002", "fusedF.2", ".4f"), ("mesh@0.002", "meshF.2", ".4f")
 def compare(before: dict, after: dict) -> None:
     """Print two quality.json results side by side: per scene both have, then mean and worst over those
     scenes, and how many scenes each figure moved up and down, at all and by more than :data:`SEED_SPREAD`."""
-    names = [r["scene"] for r in after["scenes"] if r["scene"] in {b["scene"] for b in before["scenes"]}]
-    runs = [[next(r for r in run["scenes"] if r["scene"] == n) for n in names] for run in (before, after)]
-    alone = sorted({r["scene"] for run in (before, after) for r in run["scenes"]} - set(names))
+    by_name = [{r["scene"]: r for r in run["scenes"]} for run in (before, after)]
+    names = [n for n in by_name[1] if n in by_name[0]]
+    runs = [[scenes[n] for n in names] for scenes in by_name]
+    alone = sorted(set(by_name[0]) ^ set(by_name[1]))
     if alone:
         print(f"left out, in one run only: {', '.join(alone)}")
     print(f"{'scene':<16}" + "".join(f"{label:>18}" for _, label, _ in COMPARED))
     columns = [[summary([r])["mean"] for r in rows] for rows in runs]
     for name, b, a in zip(names, *columns):
-        print(f"{name:<16}" + "".join(_moved(b.get(key), a.get(key), fmt) for key, _, fmt in COMPARED))
+        _print_moves(name, b, a)
     for which in ("mean", "worst"):
-        b, a = (summary(rows)[which] for rows in runs)
-        print(f"{which + f' ({len(names)})':<16}" + "".join(_moved(b.get(key), a.get(key), fmt) for key, _, fmt in COMPARED))
+        _print_moves(f"{which} ({len(names)})", *(summary(rows)[which] for rows in runs))
     for label, steps in (("at all", dict.fromkeys(SEED_SPREAD, 1e-4)), ("by more than the seed does", SEED_SPREAD)):
         counts = []
         for key, name, _ in COMPARED:
@@ -231,9 +231,11 @@ def compare(before: dict, after: dict) -> None:
         print(f"scenes up/down {label}: " + ", ".join(counts))
 
 
-def _moved(before: float | None, after: float | None, fmt: str) -> str:
-    text = " -> ".join("-" if v is None else format(v, fmt) for v in (before, after))
-    return f"{text:>18}"
+def _print_moves(label: str, before: dict, after: dict) -> None:
+    """One line of :func:`compare`: each compared figure as before -> after ("-" where a run has none)."""
+    cells = (" -> ".join("-" if v is None else format(v, fmt) for v in (before.get(key), after.get(key)))
+             for key, _, fmt in COMPARED)
+    print(f"{label:<16}" + "".join(f"{cell:>18}" for cell in cells))
 
 
 def print_table(rows: list[dict], summ: dict) -> None:
@@ -323,7 +325,8 @@ def _compare_files(before: Path, after: Path) -> int:
             print(f"bench: --compare: cannot read {path} ({e}); give two quality.json files of "
                   "make bench-quality", file=sys.stderr)
             return 2
-        if not isinstance(runs[-1], dict) or not all("scene" in row for row in runs[-1].get("scenes", [{}])):
+        scenes = runs[-1].get("scenes") if isinstance(runs[-1], dict) else None
+        if not isinstance(scenes, list) or not all(isinstance(row, dict) and "scene" in row for row in scenes):
             print(f"bench: --compare: {path} holds no zoo results; give a quality.json of "
                   "make bench-quality", file=sys.stderr)
             return 2
