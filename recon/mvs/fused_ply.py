@@ -1,16 +1,15 @@
-"""COLMAP's fused point cloud as files: the binary PLY (``fused.ply``) and its visibility record
-(``fused.ply.vis``: for each point, the indices of the images that saw it), read and filtered in place
-of each other so that the two stay aligned point for point."""
+"""The fused point cloud as COLMAP writes it: a binary PLY of points with normals and colours
+(``fused.ply``), and its visibility record (``fused.ply.vis``: for each point, the indices of the images
+that saw it, which COLMAP's Delaunay mesher reads)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import numpy as np
-from numba import njit
 
-_PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "<i2", "ushort": "<u2", "int": "<i4", "uint": "<u4",
-              "float": "<f4", "double": "<f8"}
+_VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4"),
+                    ("red", "u1"), ("green", "u1"), ("blue", "u1")])
 
 
 def vertex_count(ply: Path) -> int:
@@ -27,54 +26,27 @@ def vertex_count(ply: Path) -> int:
     return 0
 
 
-def _read(ply: Path) -> tuple[list[bytes], np.ndarray]:
-    """Header lines and vertices of a binary little-endian PLY holding vertices only (as COLMAP writes)."""
-    data = ply.read_bytes()
-    end = data.index(b"end_header\n") + len(b"end_header\n")
-    header = data[:end].splitlines(keepends=True)
-    fields = [(line.split()[2].decode(), _PLY_TYPES[line.split()[1].decode()])
-              for line in header if line.startswith(b"property ")]
-    if not any(line.startswith(b"format binary_little_endian") for line in header):
-        raise ValueError(f"{ply}: not a binary little-endian PLY")
-    count = next(int(line.split()[2]) for line in header if line.startswith(b"element vertex"))
-    return header, np.frombuffer(data, dtype=np.dtype(fields), count=count, offset=end)
+def write_cloud(ply: Path, xyz: np.ndarray, normals: np.ndarray, colours: np.ndarray) -> None:
+    """Write points (N, 3), unit normals (N, 3) and RGB colours (N, 3, uint8) as COLMAP's fused.ply."""
+    vertices = np.empty(len(xyz), _VERTEX)
+    for axis, name in enumerate("xyz"):
+        vertices[name] = xyz[:, axis]
+        vertices["n" + name] = normals[:, axis]
+    for channel, name in enumerate(("red", "green", "blue")):
+        vertices[name] = colours[:, channel]
+    header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(xyz)}"]
+    header += [f"property {'uchar' if _VERTEX[name].kind == 'u' else 'float'} {name}" for name in _VERTEX.names]
+    ply.write_bytes(("\n".join(header + ["end_header"]) + "\n").encode("ascii") + vertices.tobytes())
 
 
-def read_points(ply: Path) -> np.ndarray:
-    """The (N, 3) float64 vertex positions of a fused cloud."""
-    vertices = _read(ply)[1]
-    return np.stack([vertices["x"], vertices["y"], vertices["z"]], axis=1).astype(np.float64)
-
-
-def keep_points(ply: Path, keep: np.ndarray) -> None:
-    """Rewrite the fused cloud ``ply`` with only the vertices where ``keep`` is True."""
-    header, vertices = _read(ply)
-    header = [b"element vertex %d\n" % int(keep.sum()) if line.startswith(b"element vertex") else line
-              for line in header]
-    ply.write_bytes(b"".join(header) + vertices[keep].tobytes())
-
-
-def keep_visibility(vis: Path, keep: np.ndarray) -> None:
-    """Rewrite COLMAP's ``fused.ply.vis`` (uint64 count, then per point a uint32 count and that many
-    uint32 image indices) with only the points where ``keep`` is True."""
-    words = np.frombuffer(vis.read_bytes(), dtype="<u4")
-    count = int(words[0]) | (int(words[1]) << 32)
-    if count != len(keep):
-        raise ValueError(f"{vis}: {count} points, the cloud has {len(keep)}")
-    lengths = np.diff(_record_starts(words, count))
-    records = words[2:2 + int(lengths.sum())][np.repeat(np.asarray(keep, bool), lengths)]
-    kept = int(np.count_nonzero(keep))
-    vis.write_bytes(np.concatenate([np.array([kept & 0xFFFFFFFF, kept >> 32], "<u4"), records]).tobytes())
-
-
-@njit(cache=True)
-def _record_starts(words, count):  # pragma: no cover - numba
-    """Where each point's record (its view count, then its views) starts in ``words``, and where the
-    last one ends: each start depends on the previous count, a walk numpy cannot vectorise."""
-    starts = np.empty(count + 1, np.int64)
-    at = 2
-    for index in range(count):
-        starts[index] = at
-        at += 1 + words[at]
-    starts[count] = at
-    return starts
+def write_visibility(vis: Path, view_counts: np.ndarray, views: np.ndarray) -> None:
+    """Write COLMAP's fused.ply.vis: the point count (uint64), then per point its view count and that many
+    image indices (uint32); ``views`` holds the indices point after point."""
+    count = len(view_counts)
+    records = np.empty(count + len(views), "<u4")
+    starts = np.arange(count) + np.concatenate([[0], np.cumsum(view_counts)[:-1]]).astype(np.int64)
+    records[starts] = view_counts
+    is_view = np.ones(len(records), bool)
+    is_view[starts] = False
+    records[is_view] = views
+    vis.write_bytes(np.array([count & 0xFFFFFFFF, count >> 32], "<u4").tobytes() + records.tobytes())

@@ -7,14 +7,14 @@ PINHOLE cameras, ``stereo/``). Maps are written in COLMAP's layout under ``out_d
     depth_maps/<image>.photometric.bin    normal_maps/<image>.photometric.bin
     depth_maps/<image>.geometric.bin      normal_maps/<image>.geometric.bin
 
-at the working resolution (longest side at most ``max_image_size``), which ``pycolmap.stereo_fusion``
-reads with the full-size images. Each file is written atomically and the depth map last, so a depth
-map on disk means the view is complete. Filtered pixels have depth 0 and normal (0, 0, 0).
+at the working resolution (longest side at most ``max_image_size``), which fusion (recon's, or
+``pycolmap.stereo_fusion``) reads with the full-size images. Each file is written atomically and the
+depth map last, so a depth map on disk means the view is complete. Filtered pixels have depth 0 and
+normal (0, 0, 0).
 
 Depth at pixel (col, row) is along the ray through (col + 0.5, row + 0.5), recon's and COLMAP's
-sparse convention; COLMAP's fusion back-projects it through (col, row), which moves fused points by
-half a working-resolution pixel sideways (converting the maps was measured: +0.001 in F-score, not
-worth it; docs/DECISIONS.md).
+sparse convention, and recon's fusion (recon.mvs.fusion) reads it so; COLMAP's own fusion back-projects
+it through (col, row), half a working-resolution pixel aside.
 """
 
 from __future__ import annotations

@@ -1,7 +1,6 @@
 import numpy as np
 
 from recon.mvs.free_space import free_space_counts, in_free_space
-from recon.mvs.fused_ply import keep_points, keep_visibility, read_points, vertex_count
 from recon.mvs.views import ViewCamera
 
 W, H, F = 64, 48, 60.0
@@ -64,29 +63,3 @@ def test_pixels_without_depth_count_for_neither():
     agreeing, seeing_through = free_space_counts(grid(BLOCK, 0.4, 5), views, AGREE, MARGIN)
     assert not agreeing.any() and not seeing_through.any()
 
-
-def write_fused(path, points: np.ndarray) -> None:
-    """A binary PLY as COLMAP's fusion writes it."""
-    fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4"),
-              ("red", "u1"), ("green", "u1"), ("blue", "u1")]
-    vertex = np.zeros(len(points), dtype=fields)
-    vertex["x"], vertex["y"], vertex["z"] = points.T
-    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(points)}\n"
-              + "".join(f"property {'uchar' if kind == 'u1' else 'float'} {name}\n" for name, kind in fields)
-              + "end_header\n")
-    path.write_bytes(header.encode() + vertex.tobytes())
-
-
-def test_the_cloud_and_its_visibility_are_filtered_point_for_point(tmp_path):
-    points = np.arange(15, dtype=np.float64).reshape(5, 3)
-    ply, vis = tmp_path / "fused.ply", tmp_path / "fused.ply.vis"
-    write_fused(ply, points)
-    seen = [[0, 1], [2], [0, 1, 2], [3], [1, 3]]
-    words = [len(seen), 0] + [w for s in seen for w in (len(s), *s)]
-    vis.write_bytes(np.array(words, dtype="<u4").tobytes())
-    keep = np.array([True, False, True, False, True])
-    keep_points(ply, keep)
-    keep_visibility(vis, keep)
-    assert vertex_count(ply) == 3
-    np.testing.assert_array_equal(read_points(ply), points[keep])
-    assert np.frombuffer(vis.read_bytes(), dtype="<u4").tolist() == [3, 0, 2, 0, 1, 3, 0, 1, 2, 2, 1, 3]
