@@ -15,7 +15,7 @@ from recon.mvs.fused_ply import write_cloud, write_visibility
 from recon.mvs.fusion import FusionViews, Tolerances, fuse, read_views
 from recon.options import opt
 from recon.products import DenseScene, DepthMaps, FusedCloud
-from recon.stage import Stage, StageContext, StageError, register
+from recon.stage import Progress, Stage, StageContext, StageError, register
 
 
 @dataclass(frozen=True)
@@ -93,7 +93,11 @@ class Fusion(Stage):
         """Fuse ``views`` into ``path``, pixels agreeing ``within`` the tolerances, less the points in free
         space, with the views that saw each point into ``visibility_path`` when given; (points, dropped)."""
         started = time.perf_counter()
-        cloud = fuse(views, within, cfg.min_num_pixels)
+        progress = Progress(ctx.log, f"fusion: {path.name}", len(views.cameras))
+        try:
+            cloud = fuse(views, within, cfg.min_num_pixels, progress=progress.advance)
+        finally:
+            progress.close()
         dropped = 0
         if cfg.free_space and len(cloud.xyz):
             drop = in_free_space(cloud.xyz.astype(np.float64), views.depth_maps(), within.depth, cfg.free_space_margin)
