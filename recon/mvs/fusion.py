@@ -102,11 +102,15 @@ def read_views(images: Path, model: Path, stereo: Path) -> FusionViews:
         if not (depth_path.exists() and normal_path.exists()):
             log.warning("fusion: %s has no final depth and normal maps; left out", image.name)
             continue
-        depth = read_depth_map(depth_path)
+        try:
+            depth, normal = read_depth_map(depth_path), read_normal_map(normal_path)
+        except ValueError as exc:
+            raise ValueError(f"fusion: cannot read the final depth or normal map of {image.name} ({exc}); run "
+                             "again with --force mvs") from exc
         ids.append(image_id)
         indices.append(index)
         depths.append(depth)
-        normals.append(read_normal_map(normal_path))
+        normals.append(normal)
         cameras.append(scaled_to(view_camera(image, rec.camera(image.camera_id)), depth.shape[1], depth.shape[0]))
     n = len(cameras)
     height = max((d.shape[0] for d in depths), default=0)

@@ -73,7 +73,10 @@ class Fusion(Stage):
     def run(self, ctx: StageContext, cfg: FusionConfig) -> dict:
         dense = ctx.input(DenseScene)
         started = time.perf_counter()
-        views = read_views(dense.images, dense.model, ctx.input(DepthMaps).folder)
+        try:
+            views = read_views(dense.images, dense.model, ctx.input(DepthMaps).folder)
+        except ValueError as exc:  # an unreadable photo or map
+            raise StageError(str(exc)) from exc
         if not views.cameras:
             raise StageError("fusion: no registered view has final depth and normal maps; run again with "
                              "--force mvs")

@@ -119,3 +119,13 @@ def test_the_cloud_and_its_visibility_are_written_as_colmap_writes_them(tmp_path
     write_visibility(tmp_path / "fused.ply.vis", np.array([2, 1, 3, 1, 2]), np.array([0, 1, 2, 0, 1, 2, 3, 1, 3]))
     assert np.frombuffer((tmp_path / "fused.ply.vis").read_bytes(), dtype="<u4").tolist() == \
         [5, 0, 2, 0, 1, 1, 2, 3, 0, 1, 2, 1, 3, 2, 1, 3]
+
+
+def test_a_damaged_map_is_named_in_one_line(true_maps, tmp_path):
+    dense, scene, _ = true_maps
+    broken = tmp_path / "dense"
+    shutil.copytree(dense, broken)
+    name = scene.image_names[2]
+    map_path(broken / "stereo", "depth", name, "geometric").write_bytes(b"640&480&1&" + b"\0" * 100)
+    with pytest.raises(ValueError, match=f"map of {name} .*--force mvs"):
+        read_views(broken / "images", broken / "sparse", broken / "stereo")
