@@ -24,7 +24,9 @@ class FusionConfig:
                                  "surface only two photos see (a survey's edges, a walk's corners): zoo, "
                                  "docs/DECISIONS.md", ge=1)
     max_reproj_error: float = opt(1.0, "largest reprojection error (px) at which a view's pixel agrees with a point "
-                                       "of dense/fused.ply (COLMAP: 2)", gt=0)
+                                       "of dense/fused.ply (COLMAP: 2). The pixel a point's seed projects to lies "
+                                       "within 0.71 px of the projection, so from 0.71 up only the depth and normal "
+                                       "tests decide", gt=0)
     merge_reproj_error: float = opt(0.25, "an agreeing pixel within this reprojection error (px) is merged into the "
                                           "point and seeds no point of its own; smaller: a denser cloud. COLMAP "
                                           "merges every agreeing pixel. Zoo, against COLMAP's fusion at 0.5 px: fused "
