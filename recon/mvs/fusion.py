@@ -42,7 +42,7 @@ import scipy.sparse
 from numba import njit
 
 from recon.mvs.colmap_io import read_depth_map, read_normal_map
-from recon.mvs.views import ViewCamera, scaled_to, view_camera
+from recon.mvs.views import ViewCamera, observations, scaled_to, view_camera
 
 log = logging.getLogger(__name__)
 
@@ -140,15 +140,8 @@ def _colours_at_pixels(path: Path, width: int, height: int) -> np.ndarray:
 def _overlap(rec: pycolmap.Reconstruction, ids: list[int]) -> np.ndarray:
     """For each of the images ``ids``, the others (indices into ``ids``) by how many sparse points they
     share, most first, at most OVERLAPPING_VIEWS, none that shares no point."""
-    index = {image_id: i for i, image_id in enumerate(ids)}
-    point_of, view_of = [], []
-    for p, point in enumerate(rec.points3D.values()):
-        for element in point.track.elements:
-            if element.image_id in index:
-                point_of.append(p)
-                view_of.append(index[element.image_id])
-    seen = scipy.sparse.csr_matrix((np.ones(len(point_of)), (point_of, view_of)),
-                                   shape=(len(rec.points3D), len(ids)))
+    xyz, point_of, view_of = observations(rec, ids)
+    seen = scipy.sparse.csr_matrix((np.ones(len(point_of)), (point_of, view_of)), shape=(len(xyz), len(ids)))
     seen.data[:] = 1  # a view observing a point twice counts once
     shared = (seen.T @ seen).toarray()
     np.fill_diagonal(shared, 0)
@@ -238,7 +231,7 @@ def _fuse_view(ref, depth, normal, colour, sizes, P, K_inv, R, t, overlap, used,
             d = depth[ref, row, col]
             if d <= 0.0:
                 continue
-            _join(ref, row, col, d, depth, normal, colour, K_inv, R, t, member, member_view, 0)
+            _join(ref, row, col, d, normal, colour, K_inv, R, t, member, member_view, 0)
             joined = 1
             X = member[0, 0]
             Y = member[1, 0]
@@ -274,7 +267,7 @@ def _fuse_view(ref, depth, normal, colour, sizes, P, K_inv, R, t, overlap, used,
                        + (R[other, 0, 2] * nx + R[other, 1, 2] * ny + R[other, 2, 2] * nz) * member[5, 0])
                 if cos < min_cos:
                     continue
-                _join(other, r, c, d_other, depth, normal, colour, K_inv, R, t, member, member_view, joined)
+                _join(other, r, c, d_other, normal, colour, K_inv, R, t, member, member_view, joined)
                 joined += 1
                 if error_sq <= merge_sq:
                     used[other, r, c] = True
@@ -305,7 +298,7 @@ def _fuse_view(ref, depth, normal, colour, sizes, P, K_inv, R, t, overlap, used,
 
 
 @njit(cache=True)
-def _join(view, row, col, d, depth, normal, colour, K_inv, R, t, member, member_view, k):  # pragma: no cover
+def _join(view, row, col, d, normal, colour, K_inv, R, t, member, member_view, k):  # pragma: no cover
     """Store pixel (col, row) of ``view`` at depth ``d`` as the ``k``-th member: its point, world normal
     and colour."""
     cx = d * (K_inv[view, 0, 0] * col + K_inv[view, 0, 1] * row + K_inv[view, 0, 2]) - t[view, 0]

@@ -144,6 +144,22 @@ def angle_weight(angle_deg: np.ndarray) -> np.ndarray:
     return np.exp(-((angle_deg - _ANGLE_PEAK) ** 2) / (2 * sigma**2))
 
 
+def observations(reconstruction: pycolmap.Reconstruction, ids: list[int]
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sparse points (P, 3) and their observations by the images ``ids``: per observation, the point's
+    row and the image's index in ``ids`` (int64 arrays)."""
+    index = {image_id: i for i, image_id in enumerate(ids)}
+    point_rows, image_cols, xyz = [], [], []
+    for row, point in enumerate(reconstruction.points3D.values()):
+        xyz.append(point.xyz)
+        for element in point.track.elements:
+            if element.image_id in index:
+                point_rows.append(row)
+                image_cols.append(index[element.image_id])
+    return (np.asarray(xyz, dtype=np.float64).reshape(-1, 3), np.asarray(point_rows, dtype=np.int64),
+            np.asarray(image_cols, dtype=np.int64))
+
+
 def select_problems(reconstruction: pycolmap.Reconstruction, options: MVSOptions = MVSOptions(),
                     min_points: int = 10, keep: dict[str, tuple[str, ...]] | None = None,
                     reselect_top: int = 0) -> list[Problem]:
@@ -156,17 +172,7 @@ def select_problems(reconstruction: pycolmap.Reconstruction, options: MVSOptions
         if image.has_pose:
             cameras[image_id] = view_camera(image, reconstruction.cameras[image.camera_id])
     ids = sorted(cameras)
-    index = {image_id: i for i, image_id in enumerate(ids)}
-    point_rows, image_cols, xyz = [], [], []
-    for row, point in enumerate(reconstruction.points3D.values()):
-        xyz.append(point.xyz)
-        for element in point.track.elements:
-            if element.image_id in index:
-                point_rows.append(row)
-                image_cols.append(index[element.image_id])
-    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    obs_point = np.asarray(point_rows, dtype=np.int64)
-    obs_image = np.asarray(image_cols, dtype=np.int64)
+    xyz, obs_point, obs_image = observations(reconstruction, ids)
     centres = np.array([-cameras[i].R.T @ cameras[i].t for i in ids]).reshape(-1, 3)
     focals = np.array([np.sqrt(cameras[i].K[0, 0] * cameras[i].K[1, 1]) for i in ids])
     all_cameras = {cameras[i].name: cameras[i] for i in ids}
