@@ -10,7 +10,8 @@ near 0 where an earlier run's rendering is reused) and per stage. Then the mean 
 them, to tell which part of the chain lost a scene's quality: the cameras' relative-pose AUC at 5
 degrees (sfm) and the final depth maps' accuracy and completeness at 0.2 % (mvs; recon.eval.depth).
 And ``maxF``, the highest fused F@0.2 % the scene allows: a fused point needs two views, and some of the
-observable surface only one photo sees (:func:`seen_twice`).
+observable surface only one photo sees (:func:`seen_twice`); beside coverage, ``seen2``, the share of the
+held-out views' surface that two input views see (:func:`holdout_seen_twice`).
 
 - PSNR is over the pixels where the rendered mesh and the true surface both are (recon.eval.texture).
 - Coverage is the share of the held-out views' true-surface pixels (ground-truth depth > 0; in a
@@ -79,7 +80,6 @@ def holdout_texture(ws: Path, scene) -> dict:
     from PIL import Image
 
     from recon.eval.texture import masked_psnr, render
-    from recon.imaging.masks import load_mask
     from recon.surface.export import read_glb
 
     sim = recon.api.model_to_ground_truth(ws, scene.root)
@@ -91,9 +91,7 @@ def holdout_texture(ws: Path, scene) -> dict:
     coverage = []
     for name, cam in scene.cameras(holdout=True).items():
         truth = np.asarray(Image.open(scene.holdout_images_dir / name).convert("RGB"))
-        surface = scene.depth(name) > 0
-        if scene.masked:  # the masked object's pixels only: the masks keep the rest out of the texture
-            surface &= load_mask(scene.holdout_masks_dir, name, surface.shape)
+        surface = holdout_surface(scene, name)
         for key, mesh in meshes.items():
             image, mask = render(mesh, cam, cam.width, cam.height)
             if (mask & surface).any():  # no PSNR where the mesh shows nothing of the surface
@@ -104,6 +102,35 @@ def holdout_texture(ws: Path, scene) -> dict:
     if psnr["texture"]:
         out |= {"psnr": float(np.mean(psnr["texture"])), "psnr_vertex_colours": float(np.mean(psnr["vertex_colours"]))}
     return out
+
+
+def holdout_surface(scene, name: str) -> np.ndarray:
+    """The pixels of held-out view ``name`` that coverage and PSNR count: the true surface (ground-truth
+    depth > 0), in a masked scene the masked object's only (the masks keep the rest out of the texture)."""
+    from recon.imaging.masks import load_mask
+
+    surface = scene.depth(name) > 0
+    if scene.masked:
+        surface &= load_mask(scene.holdout_masks_dir, name, surface.shape)
+    return surface
+
+
+def holdout_seen_twice(scene) -> float:
+    """The share of the held-out views' surface pixels (what coverage counts) whose surface two input views or
+    more see (recon.eval.surface.views_seeing): what depth maps can measure of it, the ``seen2`` column. It
+    does not bound coverage: Poisson closes the surface across what one photo alone sees, and so may cover
+    more. Where a scene's coverage lies above it, the excess stands on surface no two photos measured."""
+    from recon.eval.surface import views_seeing
+    from recon.geometry.transforms import backproject
+
+    seen = total = 0
+    for name, cam in scene.cameras(holdout=True).items():
+        rows, cols = np.nonzero(holdout_surface(scene, name))
+        depth = scene.depth(name)[rows, cols]
+        points = backproject(cam.K, cam.R, cam.t, np.column_stack([cols + 0.5, rows + 0.5]), depth)
+        seen += int(np.count_nonzero(views_seeing(scene, points) >= 2))
+        total += len(points)
+    return seen / max(total, 1)
 
 
 def object_figures(ws: Path, scene) -> dict:
@@ -181,6 +208,7 @@ def scene_figures(ws: Path, scene) -> dict:
            "depth": depth_figures(ws, scene)}
     if not scene.masked:  # (scored against the whole object, the underside no photo sees included)
         row["seen_twice"] = seen_twice(scene)
+    row["holdout_seen_twice"] = holdout_seen_twice(scene)
     for key in ("fused", "mesh"):
         row[key] = {f"F@{t}": figures[key][f"fscore@{t}"] / 100 for t in TAUS if key in figures}
     return row | holdout_texture(ws, scene)
@@ -190,6 +218,7 @@ def summary(rows: list[dict]) -> dict:
     """Mean and worst over the scenes (a failed scene counts as F = 0 and coverage 0)."""
     cols = {f"{k}@{t}": [r[k][f"F@{t}"] if k in r else 0.0 for r in rows] for k in ("fused", "mesh") for t in TAUS}
     cols["coverage"] = [r.get("coverage", 0.0) for r in rows]
+    cols["holdout_seen_twice"] = [r["holdout_seen_twice"] for r in rows if "holdout_seen_twice" in r]
     for key in ("psnr", "psnr_vertex_colours"):
         cols[key] = [r[key] for r in rows if key in r]
     cols["psnr_gain"] = [r["psnr"] - r["psnr_vertex_colours"] for r in rows if "psnr" in r]
@@ -243,7 +272,7 @@ def print_table(rows: list[dict], summ: dict) -> None:
     short = {"preprocess": "prep", "features": "feat", "matching": "match", "undistort": "undist",
              "fusion": "fuse", "texture": "tex"}
     head = (f"{'scene':<16}{'reg':>6}{'AUC5':>6}{'dAcc.2':>7}{'dCmp.2':>7}{'fusedF.2':>9}{'maxF':>6}{'fusedF.5':>9}{'meshF.2':>8}{'meshF.5':>8}{'texPSNR':>8}"
-            f"{'vcPSNR':>7}{'cover':>7} |{'render':>7}" + "".join(f"{short.get(s, s):>7}" for s in stages) + f"{'total':>8}")
+            f"{'vcPSNR':>7}{'cover':>7}{'seen2':>7} |{'render':>7}" + "".join(f"{short.get(s, s):>7}" for s in stages) + f"{'total':>8}")
     print(head)
     print("-" * len(head))
 
@@ -258,8 +287,8 @@ def print_table(rows: list[dict], summ: dict) -> None:
         ceiling = f_ceiling(r["seen_twice"]) if "seen_twice" in r else None
         print(f"{r['scene']:<16}{reg:>6}{fig(r.get('pose_auc@5'), '6.2f')}{fig(depth.get('accuracy@0.002'), '7.3f')}"
               f"{fig(depth.get('completeness@0.002'), '7.3f')}{fig(f[0], '9.3f')}{fig(ceiling, '6.3f')}{fig(f[1], '9.3f')}{fig(f[2], '8.3f')}{fig(f[3], '8.3f')}"
-              f"{fig(r.get('psnr'), '8.2f')}{fig(r.get('psnr_vertex_colours'), '7.2f')}{fig(r.get('coverage'), '7.3f')} |"
-              f"{fig(r.get('render_seconds'), '7.1f')}" + "".join(f"{secs[s]:>7.1f}" if s in secs else f"{'-':>7}" for s in stages)
+              f"{fig(r.get('psnr'), '8.2f')}{fig(r.get('psnr_vertex_colours'), '7.2f')}{fig(r.get('coverage'), '7.3f')}"
+              f"{fig(r.get('holdout_seen_twice'), '7.3f')} |{fig(r.get('render_seconds'), '7.1f')}" + "".join(f"{secs[s]:>7.1f}" if s in secs else f"{'-':>7}" for s in stages)
               + f"{sum(secs.values()):>8.1f}")
         if "error" in r:
             print(f"{'':<16}failed: {r['error']}")
@@ -267,7 +296,8 @@ def print_table(rows: list[dict], summ: dict) -> None:
         m = summ[which]
         print(f"{which:<16}{'':>26}{fig(m.get('fused@0.002'), '9.3f')}{'':>6}{fig(m.get('fused@0.005'), '9.3f')}"
               f"{fig(m.get('mesh@0.002'), '8.3f')}{fig(m.get('mesh@0.005'), '8.3f')}{fig(m.get('psnr'), '8.2f')}"
-              f"{fig(m.get('psnr_vertex_colours'), '7.2f')}{fig(m.get('coverage'), '7.3f')} |")
+              f"{fig(m.get('psnr_vertex_colours'), '7.2f')}{fig(m.get('coverage'), '7.3f')}"
+              f"{fig(m.get('holdout_seen_twice'), '7.3f')} |")
     if "psnr_gain" in summ["mean"]:
         print(f"texture over vertex colours: mean {summ['mean']['psnr_gain']:+.2f} dB, worst "
               f"{summ['worst']['psnr_gain']:+.2f} dB")

@@ -52,19 +52,25 @@ def test_a_rendering_of_an_earlier_scene_definition_is_rendered_again(tmp_path):
 
 
 def test_fewer_views_leave_less_surface_seen_twice(tmp_path):
-    """maxF, the highest fused F a scene allows: the share of its observable surface two views see."""
-    few = quality_bench.seen_twice(quality_bench.scene_for("turntable_black", tmp_path / "a" / "scene", 80, 60, 3))
-    many = quality_bench.seen_twice(quality_bench.scene_for("turntable_black", tmp_path / "b" / "scene", 80, 60, 12))
-    assert 0.0 < few < many <= 1.0
+    """maxF, the highest fused F a scene allows: the share of its observable surface two views see; and seen2,
+    the share of the held-out views' surface two input views see."""
+    few = quality_bench.scene_for("turntable_black", tmp_path / "a" / "scene", 80, 60, 3)
+    many = quality_bench.scene_for("turntable_black", tmp_path / "b" / "scene", 80, 60, 12)
+    assert 0.0 < quality_bench.seen_twice(few) < quality_bench.seen_twice(many) <= 1.0
+    assert 0.0 < quality_bench.holdout_seen_twice(few) < quality_bench.holdout_seen_twice(many) <= 1.0
+    assert quality_bench.holdout_seen_twice(many) > 0.9  # a full orbit of 12 sees what the held-out views see
     assert quality_bench.f_ceiling(1.0) == 1.0 and quality_bench.f_ceiling(0.8) == pytest.approx(1.6 / 1.8)
 
 
-def test_the_table_prints_maxf_where_it_was_measured(capsys):
-    rows = [_row("a", 0.9, 0.8, 26.0, 22.0, 0.99) | {"seen_twice": 0.8}, _row("b", 0.7, 0.6, 24.0, 23.0, 0.95)]
+def test_the_table_prints_maxf_and_seen2_where_they_were_measured(capsys):
+    rows = [_row("a", 0.9, 0.8, 26.0, 22.0, 0.99) | {"seen_twice": 0.8, "holdout_seen_twice": 0.987},
+            _row("b", 0.7, 0.6, 24.0, 23.0, 0.95) | {"holdout_seen_twice": 0.961}]
     quality_bench.print_table(rows, quality_bench.summary(rows))
     lines = capsys.readouterr().out.splitlines()
-    assert "maxF" in lines[0]
+    assert "maxF" in lines[0] and "seen2" in lines[0]
     assert f"{1.6 / 1.8:.3f}" in next(line for line in lines if line.startswith("a "))
+    assert "0.987" in next(line for line in lines if line.startswith("a "))
+    assert "0.974" in next(line for line in lines if line.startswith("mean"))
 
 
 def test_compare_prints_both_runs_and_counts_moves_beyond_the_seed(tmp_path, capsys):
