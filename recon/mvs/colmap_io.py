@@ -21,15 +21,28 @@ import numpy as np
 from recon.files import atomic
 
 
-def read_map(path: str | os.PathLike) -> np.ndarray:
-    """A COLMAP ``.bin`` map as float32: H x W when it has one channel, else H x W x C."""
-    data = Path(path).read_bytes()
+def _header(data: bytes) -> tuple[int, int, int, int]:
+    """Width, height, channels and where the values start, from the bytes of a map (ValueError where
+    they hold no header)."""
     fields, pos = [], 0
     for _ in range(3):
         end = data.index(b"&", pos)
         fields.append(int(data[pos:end]))
         pos = end + 1
-    width, height, channels = fields
+    return fields[0], fields[1], fields[2], pos
+
+
+def map_size(path: str | os.PathLike) -> tuple[int, int]:
+    """Width and height of a COLMAP ``.bin`` map, from its header alone."""
+    with open(path, "rb") as f:
+        width, height, _, _ = _header(f.read(64))
+    return width, height
+
+
+def read_map(path: str | os.PathLike) -> np.ndarray:
+    """A COLMAP ``.bin`` map as float32: H x W when it has one channel, else H x W x C."""
+    data = Path(path).read_bytes()
+    width, height, channels, pos = _header(data)
     values = np.frombuffer(data, dtype="<f4", count=width * height * channels, offset=pos)
     planes = values.reshape(channels, height, width).astype(np.float32)
     return planes[0] if channels == 1 else np.ascontiguousarray(planes.transpose(1, 2, 0))

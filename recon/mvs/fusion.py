@@ -23,7 +23,8 @@ Two more differences, both measured:
 
 With ``merge_px == reproj_px`` and ``pixel_centre`` 0 it is COLMAP's fusion at traversal depth 2:
 ``tests/mvs/test_fusion.py`` compares it with ``pycolmap.stereo_fusion``. Like COLMAP's, it holds every
-view's maps at once: 20 bytes a working pixel (200 views at 1536x1152: 7 GB).
+view's maps at once: ``BYTES_PER_PIXEL`` (20) a working pixel (200 views at 1536x1152: 7 GB); a run that
+would need more than the machine has free stops with a line saying so.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ import pycolmap
 import scipy.sparse
 from numba import njit
 
-from recon.mvs.colmap_io import read_depth_map, read_normal_map
+from recon.mvs.colmap_io import map_size, read_depth_map, read_normal_map
 from recon.mvs.views import ViewCamera, observations, scaled_to, view_camera
 
 log = logging.getLogger(__name__)
@@ -49,6 +50,9 @@ log = logging.getLogger(__name__)
 #: views that share the most sparse points with a view are the ones its points look for partners in
 #: (COLMAP's ``check_num_images``)
 OVERLAPPING_VIEWS = 50
+#: what fusion holds per pixel of every view's maps at once: depth (4 bytes), normal (12), colour (3) and
+#: whether the pixel is used up (1)
+BYTES_PER_PIXEL = 20
 
 
 class Tolerances(NamedTuple):
@@ -94,9 +98,10 @@ class FusedPoints(NamedTuple):
 
 def read_views(images: Path, model: Path, stereo: Path) -> FusionViews:
     """The registered views of the undistorted ``model`` that have final depth and normal maps in
-    ``stereo`` (COLMAP's layout), with their colours from ``images``."""
+    ``stereo`` (COLMAP's layout), with their colours from ``images``. ValueError, naming what to do, where
+    a map is damaged or the maps do not fit in the memory this machine has free."""
     rec = pycolmap.Reconstruction(str(model))
-    ids, indices, cameras, depths, normals = [], [], [], [], []
+    found = []  # (index among the registered images, image, depth map, normal map, map size)
     for index, image_id in enumerate(rec.reg_image_ids()):
         image = rec.image(image_id)
         depth_path = stereo / "depth_maps" / f"{image.name}.geometric.bin"
@@ -104,12 +109,15 @@ def read_views(images: Path, model: Path, stereo: Path) -> FusionViews:
         if not (depth_path.exists() and normal_path.exists()):
             log.warning("fusion: %s has no final depth and normal maps; left out", image.name)
             continue
+        found.append((index, image, depth_path, normal_path, _size(depth_path, image.name)))
+    _check_memory([size for *_, size in found])
+    ids, indices, cameras, depths, normals = [], [], [], [], []
+    for index, image, depth_path, normal_path, _ in found:
         try:
             depth, normal = read_depth_map(depth_path), read_normal_map(normal_path)
         except ValueError as exc:
-            raise ValueError(f"fusion: cannot read the final depth or normal map of {image.name} ({exc}); run "
-                             "again with --force mvs") from exc
-        ids.append(image_id)
+            raise _damaged(image.name, exc) from exc
+        ids.append(image.image_id)
         indices.append(index)
         depths.append(depth)
         normals.append(normal)
@@ -125,6 +133,44 @@ def read_views(images: Path, model: Path, stereo: Path) -> FusionViews:
         normal[i, :cam.height, :cam.width], normals[i] = normals[i], None
         colour[i, :cam.height, :cam.width] = _colours_at_pixels(images / cam.name, cam.width, cam.height)
     return FusionViews(cameras, depth, normal, colour, _overlap(rec, ids), np.array(indices, np.int32))
+
+
+def _damaged(name: str, exc: Exception) -> ValueError:
+    return ValueError(f"fusion: cannot read the final depth or normal map of {name} ({exc}); run again with "
+                      "--force mvs")
+
+
+def _size(path: Path, name: str) -> tuple[int, int]:
+    try:
+        return map_size(path)
+    except (ValueError, OSError) as exc:
+        raise _damaged(name, exc) from exc
+
+
+def _check_memory(sizes: list[tuple[int, int]]) -> None:
+    """ValueError where every view's maps, padded to the largest and held at once, need more memory than this
+    machine has free: the kernel would otherwise kill the run without a word."""
+    if not sizes:
+        return
+    width, height = max(w for w, _ in sizes), max(h for _, h in sizes)
+    need = len(sizes) * width * height * BYTES_PER_PIXEL
+    free = _available_memory()
+    if free is not None and need > free:
+        raise ValueError(f"fusion: the final maps of {len(sizes)} views at {width}x{height} need {need / 1e9:.1f} GB "
+                         f"held at once and this machine has {free / 1e9:.1f} GB free; lower mvs.max_image_size "
+                         "(the memory goes with its square), or free memory, and run again")
+
+
+def _available_memory() -> int | None:
+    """Bytes of memory free for a new allocation (Linux's MemAvailable; None where it cannot be read)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
 
 
 def _colours_at_pixels(path: Path, width: int, height: int) -> np.ndarray:

@@ -10,9 +10,10 @@ import pytest
 from scipy.spatial import cKDTree
 
 from recon._open3d import open3d
+from recon.mvs import fusion
 from recon.mvs.colmap_io import write_map
 from recon.mvs.fused_ply import vertex_count, write_cloud, write_visibility
-from recon.mvs.fusion import Tolerances, fuse, read_views
+from recon.mvs.fusion import BYTES_PER_PIXEL, Tolerances, fuse, read_views
 from recon.mvs.stereo import map_path
 from recon.synth import load_scene
 
@@ -129,3 +130,17 @@ def test_a_damaged_map_is_named_in_one_line(true_maps, tmp_path):
     map_path(broken / "stereo", "depth", name, "geometric").write_bytes(b"640&480&1&" + b"\0" * 100)
     with pytest.raises(ValueError, match=f"map of {name} .*--force mvs"):
         read_views(broken / "images", broken / "sparse", broken / "stereo")
+
+
+def test_maps_that_do_not_fit_in_free_memory_stop_with_one_line(true_maps, monkeypatch):
+    """Fusion holds every view's maps at once; where they do not fit, the kernel would kill the run without a
+    word, so it stops first, saying which option lowers the memory."""
+    dense, _, views = true_maps
+    n, height, width = views.depth.shape
+    need = n * height * width * BYTES_PER_PIXEL
+    assert fusion._available_memory() > 0  # read on this machine
+    monkeypatch.setattr(fusion, "_available_memory", lambda: need - 1)
+    with pytest.raises(ValueError, match=rf"{n} views at {width}x{height} need .* GB .*mvs\.max_image_size"):
+        read_views(dense / "images", dense / "sparse", dense / "stereo")
+    monkeypatch.setattr(fusion, "_available_memory", lambda: need)
+    assert len(read_views(dense / "images", dense / "sparse", dense / "stereo").cameras) == n
