@@ -91,7 +91,7 @@ def holdout_texture(ws: Path, scene) -> dict:
     coverage = []
     for name, cam in scene.cameras(holdout=True).items():
         truth = np.asarray(Image.open(scene.holdout_images_dir / name).convert("RGB"))
-        surface = holdout_surface(scene, name)
+        surface = holdout_surface(scene, name, scene.depth(name))
         for key, mesh in meshes.items():
             image, mask = render(mesh, cam, cam.width, cam.height)
             if (mask & surface).any():  # no PSNR where the mesh shows nothing of the surface
@@ -104,12 +104,13 @@ def holdout_texture(ws: Path, scene) -> dict:
     return out
 
 
-def holdout_surface(scene, name: str) -> np.ndarray:
-    """The pixels of held-out view ``name`` that coverage and PSNR count: the true surface (ground-truth
-    depth > 0), in a masked scene the masked object's only (the masks keep the rest out of the texture)."""
+def holdout_surface(scene, name: str, depth: np.ndarray) -> np.ndarray:
+    """The pixels of held-out view ``name`` (its ground-truth ``depth``) that coverage and PSNR count: the true
+    surface (depth > 0), in a masked scene the masked object's only (the masks keep the rest out of the
+    texture)."""
     from recon.imaging.masks import load_mask
 
-    surface = scene.depth(name) > 0
+    surface = depth > 0
     if scene.masked:
         surface &= load_mask(scene.holdout_masks_dir, name, surface.shape)
     return surface
@@ -125,9 +126,9 @@ def holdout_seen_twice(scene) -> float:
 
     seen = total = 0
     for name, cam in scene.cameras(holdout=True).items():
-        rows, cols = np.nonzero(holdout_surface(scene, name))
-        depth = scene.depth(name)[rows, cols]
-        points = backproject(cam.K, cam.R, cam.t, np.column_stack([cols + 0.5, rows + 0.5]), depth)
+        depth = scene.depth(name)
+        rows, cols = np.nonzero(holdout_surface(scene, name, depth))
+        points = backproject(cam.K, cam.R, cam.t, np.column_stack([cols + 0.5, rows + 0.5]), depth[rows, cols])
         seen += int(np.count_nonzero(views_seeing(scene, points) >= 2))
         total += len(points)
     return seen / max(total, 1)
