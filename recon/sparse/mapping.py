@@ -20,13 +20,10 @@ FALLBACK_MIN_SHARE = 0.95
 #: a model is sound when its mean reprojection error (after the final BA) is at most this, pixels:
 #: SIFT models are at 0.2-1 px (temple_ring 0.6, the walk-around zoo scene 0.2-0.3)
 MAX_SOUND_REPROJ_ERROR = 2.0
-#: ... and its photos hold at least this many observations of its points on average. The incremental
-#: mapper needs 100 verified inliers to start a model; a kept model needs as much evidence per photo.
-#: COLMAP's global mapper, given three photos with 16-30 inliers a pair, returned a "model" of 4 points at
-#: 0.0 px; given 12 photos of a turntable at 320x240 (no pair over 58 inliers), 113 points, 31 observations
-#: a photo, 0.26 px, and poses 30 degrees off. Sound models hold 300-2600 (the zoo, the global mapper's
-#: walk-around scene 310).
-MIN_SOUND_OBSERVATIONS = 100
+#: ... and it holds at least this many points: COLMAP's global mapper, given three photos with 16-30
+#: inliers a pair (no pair can start the incremental mapper), returned a "model" of 4 points at 0.0 px.
+#: The incremental mapper needs 100 verified inliers to start a model; a kept model needs as many points
+MIN_SOUND_POINTS = 100
 #: fewer photos than this share in the largest model ends sfm with a warning (:func:`left_out_warning`)
 WARN_REGISTERED_SHARE = 0.75
 
@@ -34,13 +31,13 @@ WARN_REGISTERED_SHARE = 0.75
 @dataclass(frozen=True)
 class Attempt:
     """What one mapper made: photos in its largest model, how many models, that model's mean
-    reprojection error (pixels; None without a model) and its points' observations per photo."""
+    reprojection error (pixels; None without a model) and its 3D points."""
 
     mapper: str
     registered: int
     models: int
     mean_reproj_error: float | None
-    observations: float = 0.0
+    points: int = 0
 
     @staticmethod
     def of(mapper: str, models: list) -> Attempt:
@@ -48,7 +45,7 @@ class Attempt:
             return Attempt(mapper, 0, 0, None)
         best = models[0]
         return Attempt(mapper, best.num_reg_images(), len(models), best.compute_mean_reprojection_error(),
-                       best.compute_mean_observations_per_reg_image())
+                       best.num_points3D())
 
     def describe(self, photos: int) -> str:
         if not self.models:
@@ -105,17 +102,16 @@ def shortfall(attempt: Attempt, photos: int) -> str | None:
 def choose(incremental: Attempt, fallback: Attempt, photos: int) -> tuple[str, str]:
     """The mapper whose models are kept after the fallback ran, and why: the global mapper's where its
     largest model registers more photos at a mean reprojection error up to
-    :data:`MAX_SOUND_REPROJ_ERROR` with :data:`MIN_SOUND_OBSERVATIONS` observations per photo, else the
-    incremental mapper's."""
+    :data:`MAX_SOUND_REPROJ_ERROR` with :data:`MIN_SOUND_POINTS` points, else the incremental mapper's."""
     short = incremental.describe(photos)
     if not fallback.models:
         return "incremental", f"{short}; the global mapper built no model"
     if fallback.mean_reproj_error > MAX_SOUND_REPROJ_ERROR:
         return "incremental", (f"{short}; the global mapper's model has a mean reprojection error of "
                                f"{fallback.mean_reproj_error:.2f} px (over {MAX_SOUND_REPROJ_ERROR:g} px: unsound)")
-    if fallback.observations < MIN_SOUND_OBSERVATIONS:
-        return "incremental", (f"{short}; the global mapper's model has {fallback.observations:.0f} observations "
-                               f"per photo (under {MIN_SOUND_OBSERVATIONS}: unsound)")
+    if fallback.points < MIN_SOUND_POINTS:
+        return "incremental", (f"{short}; the global mapper's model has {fallback.points} points "
+                               f"(under {MIN_SOUND_POINTS}: unsound)")
     if fallback.registered <= incremental.registered:
         return "incremental", f"{short}; the global mapper's largest model holds no more ({fallback.registered})"
     return "global", f"{short}; {fallback.describe(photos)}"

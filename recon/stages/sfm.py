@@ -107,7 +107,7 @@ class SfmConfig:
 @register
 class Sfm(Stage):
     name = "sfm"
-    version = 8
+    version = 7
     Config = SfmConfig
     requires = (PreparedPhotos, FeatureDatabase, MatchDatabase)
     produces = SparseModel

@@ -30,10 +30,7 @@ def test_global_kept_only_when_it_registers_more_at_a_sound_error():
     mapper, why = choose(incremental, Attempt("global", 29, 1, 2.5, 5000), 29)
     assert mapper == "incremental" and "mean reprojection error of 2.50 px (over 2 px: unsound)" in why
     mapper, why = choose(Attempt("incremental", 0, 0, None), Attempt("global", 3, 1, 0.0, 4), 3)
-    assert mapper == "incremental" and why.endswith("has 4 observations per photo (under 100: unsound)")  # 3 far views
-    mapper, why = choose(Attempt("incremental", 3, 1, 0.3), Attempt("global", 12, 1, 0.26, 31), 12)
-    assert mapper == "incremental" and why.endswith("has 31 observations per photo (under 100: unsound)")
-    assert choose(Attempt("incremental", 3, 1, 0.3), Attempt("global", 12, 1, 0.26, 100), 12)[0] == "global"
+    assert mapper == "incremental" and why.endswith("model has 4 points (under 100: unsound)")  # seen: 3 far views
     assert choose(incremental, Attempt("global", 9, 2, 0.3, 5000), 29)[0] == "incremental"  # a tie keeps incremental
     mapper, why = choose(incremental, Attempt("global", 0, 0, None), 29)
     assert mapper == "incremental" and why.endswith("the global mapper built no model")
@@ -66,8 +63,8 @@ class _Model:
     def compute_mean_reprojection_error(self):
         return self.error
 
-    def compute_mean_observations_per_reg_image(self):
-        return 500.0
+    def num_points3D(self):
+        return 1000 * self.registered
 
 
 @pytest.fixture
