@@ -33,7 +33,7 @@ def write_exports(textured, out, georeference: dict | None = None) -> dict:
 @register
 class Texture(Stage):
     name = "texture"
-    version = 3
+    version = 4
     Config = TextureConfig
     requires = (SparseModel, DenseScene, SurfaceMesh)
     produces = TexturedModel

@@ -32,6 +32,35 @@ def test_gains_and_vignetting_are_recovered_despite_a_car():
     assert np.abs(found.vignetting(0, x) - (1 - 0.4 * x) ** (1 / GAMMA)).max() < 0.02
 
 
+def test_a_photo_that_shows_something_else_everywhere_keeps_its_own_exposure():
+    """A photo black at faces the others see bright (poses off, the black background where the mesh has the
+    object) gave a gain of 0.00; undone, its colours came out white or NaN."""
+    rng = np.random.default_rng(1)
+    n_faces, n_views = 2000, 8
+    face, view = (a.ravel() for a in np.meshgrid(np.arange(n_faces), np.arange(n_views), indexing="ij"))
+    colours = np.repeat(rng.uniform(40, 180, (n_faces, 3)), n_views, axis=0) + rng.normal(0, 2, (len(face), 3))
+    colours[view == 5] = rng.uniform(0, 3, ((view == 5).sum(), 3))
+    found = calibrate(face, view, colours, rng.uniform(0, 1, len(face)), np.zeros(n_views, np.int64), n_faces)
+    assert np.array_equal(found.gain[5], [1.0, 1.0, 1.0])
+    assert np.abs(np.delete(found.gain, 5, axis=0) - 1).max() < 0.02
+
+
+def test_no_vignetting_is_fitted_from_faces_in_the_middle_of_the_photos_alone():
+    """An object in the middle: the fall-off fitted to its faces, extrapolated to the corners, made them
+    2.8 times brighter than the centre; a lens darkens its corners, so none is corrected."""
+    rng = np.random.default_rng(2)
+    n_faces, n_views = 3000, 12
+    face, view = (a.ravel() for a in np.meshgrid(np.arange(n_faces), np.arange(n_views), indexing="ij"))
+    r2 = rng.uniform(0, 0.3, len(face))
+    bump = 1 + 0.6 * r2  # a shading trend over the middle of the photos that a fit extrapolates upwards
+    colours = np.repeat(rng.uniform(40, 180, (n_faces, 3)), n_views, axis=0) * bump[:, None]
+    found = calibrate(face, view, colours, r2, np.zeros(n_views, np.int64), n_faces)
+    assert np.array_equal(found.falloff, [[0.0, 0.0]])
+    unbounded = calibrate(face, view, colours / bump[:, None] * (1 - 0.2 * r2)[:, None], r2,
+                          np.zeros(n_views, np.int64), n_faces)
+    assert unbounded.vignetting(0, np.array([0.3]))[0] == pytest.approx(0.94, abs=0.02)  # a darkening is fitted
+
+
 def vignetted(images: list[np.ndarray], loss: float = 0.4) -> list[np.ndarray]:
     """The photos with ``loss`` of the light lost in the corners (quadratic fall-off in linear light)."""
     out = []

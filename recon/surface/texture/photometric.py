@@ -34,6 +34,14 @@ _ROUNDS = 4
 _BINS = 16
 _MIN_PER_BIN = 50
 _LOWEST = 0.25  # the fall-off is never taken below this (a poor fit at the very corners)
+#: a fitted fall-off above this anywhere out to the corners is no lens's (a lens darkens its corners); where
+#: the faces fill only the middle of the photos (an object on a turntable), the fit, extrapolated to the
+#: corners, made them 2.8 times brighter than the centre: no vignetting is corrected then
+_BRIGHTEST = 1.1
+#: a view whose gain in some channel comes out beyond this factor (3 stops) from the median keeps gain 1:
+#: a photo that shows mostly something else at the faces it is matched to (poses off, a black background
+#: where the mesh has the object) gave a gain of 0.00, and the photo divided by it came out white or NaN
+MAX_GAIN = 8.0
 
 
 @dataclass(frozen=True)
@@ -81,10 +89,16 @@ def calibrate(face: np.ndarray, view: np.ndarray, colours: np.ndarray, radius2: 
         albedo = face_median(f, c / (gain[v] * vig), n_faces)
         gain = view_median(v, c / (albedo[f] * vig), n_views)
         gain /= np.median(gain, axis=0)
+        implausible = np.any((gain > MAX_GAIN) | (gain < 1.0 / MAX_GAIN), axis=1)
+        gain[implausible] = 1.0
         ratio = (c / (albedo[f] * gain[v])).mean(axis=1)
         falloff = np.array([_fit_falloff(r2[group[v] == k], ratio[group[v] == k]) for k in range(n_groups)])
     log.info("photometric calibration: gains %.2f-%.2f, vignetting at the corners %s", gain.min(), gain.max(),
              ", ".join(f"{1 + a + b:.2f}" for a, b in falloff))
+    if implausible.any():
+        log.warning("photometric calibration: %d photo(s) left uncorrected: the colours they show of the mesh's faces "
+                    "differ from the other photos' by more than %g times (poses off, or something else in view)",
+                    int(implausible.sum()), MAX_GAIN)
     return Calibration(gain, group, falloff)
 
 
@@ -106,7 +120,14 @@ def _fit_falloff(r2: np.ndarray, ratio: np.ndarray) -> tuple[float, float]:
         return 0.0, 0.0
     w = np.asarray(weights)[:, None]
     (s, a, b), *_ = np.linalg.lstsq(np.asarray(rows) * w, np.asarray(values) * w[:, 0], rcond=None)
-    return (a / s, b / s) if s > 0 else (0.0, 0.0)
+    if s <= 0:
+        return 0.0, 0.0
+    a, b = a / s, b / s
+    r2 = np.linspace(0.0, 1.0, 21)
+    falloff = 1.0 + a * r2 + b * r2 * r2
+    if falloff.max() > _BRIGHTEST or falloff.min() < _LOWEST:
+        return 0.0, 0.0
+    return a, b
 
 
 def calibrate_photos(quality: np.ndarray, vertices: np.ndarray, faces: np.ndarray, images: Sequence[np.ndarray],
