@@ -56,9 +56,9 @@ def test_no_vignetting_is_fitted_from_faces_in_the_middle_of_the_photos_alone():
     colours = np.repeat(rng.uniform(40, 180, (n_faces, 3)), n_views, axis=0) * bump[:, None]
     found = calibrate(face, view, colours, r2, np.zeros(n_views, np.int64), n_faces)
     assert np.array_equal(found.falloff, [[0.0, 0.0]])
-    unbounded = calibrate(face, view, colours / bump[:, None] * (1 - 0.2 * r2)[:, None], r2,
-                          np.zeros(n_views, np.int64), n_faces)
-    assert unbounded.vignetting(0, np.array([0.3]))[0] == pytest.approx(0.94, abs=0.02)  # a darkening is fitted
+    darkened = calibrate(face, view, colours / bump[:, None] * (1 - 0.2 * r2)[:, None], r2,
+                         np.zeros(n_views, np.int64), n_faces)
+    assert darkened.vignetting(0, np.array([0.3]))[0] == pytest.approx(0.94, abs=0.02)  # a darkening is fitted
 
 
 def vignetted(images: list[np.ndarray], loss: float = 0.4) -> list[np.ndarray]:

@@ -33,11 +33,12 @@ _DARK, _BRIGHT = 20.0, 235.0  # faces with a channel outside these (0-255) neith
 _ROUNDS = 4
 _BINS = 16
 _MIN_PER_BIN = 50
-_LOWEST = 0.25  # the fall-off is never taken below this (a poor fit at the very corners)
-#: a fitted fall-off above this anywhere out to the corners is no lens's (a lens darkens its corners); where
-#: the faces fill only the middle of the photos (an object on a turntable), the fit, extrapolated to the
-#: corners, made them 2.8 times brighter than the centre: no vignetting is corrected then
-_BRIGHTEST = 1.1
+#: a fitted fall-off outside these anywhere out to the corners is no lens's, and no vignetting is corrected: a
+#: lens darkens its corners, and not to under a quarter of its centre. Where the faces fill only the middle of the photos
+#: (an object on a turntable), the fit, extrapolated to the corners, made them 2.8 times brighter than the
+#: centre. The fall-off applied is never below the lowest value (past the corners of an off-centre principal
+#: point).
+_LOWEST, _BRIGHTEST = 0.25, 1.1
 #: a view whose gain in some channel comes out beyond this factor (3 stops) from the median keeps gain 1:
 #: a photo that shows mostly something else at the faces it is matched to (poses off, a black background
 #: where the mesh has the object) gave a gain of 0.00, and the photo divided by it came out white or NaN
