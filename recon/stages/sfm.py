@@ -134,7 +134,8 @@ class Sfm(Stage):
         report = mapping.registration_report(database, models, cfg.min_num_matches, cfg.init_min_tri_angle,
                                               cfg.min_model_size)
         if not models:
-            raise StageError(f"sfm: no model could be built. {report['reason']}")
+            tried = f": {made.why}" if len(made.attempts) > 1 else ""  # the global mapper's model refused, or none
+            raise StageError(f"sfm: no model could be built{tried}. {report['reason']}")
         kept = _keep_frame(ctx, models, previous) if start is not None else None
         georef = _georeference(ctx, cfg, models, listing["images"], images, continued=start is not None)
         report["frame"] = _level(models, georef, kept)
