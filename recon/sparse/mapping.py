@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 import tempfile
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -57,12 +57,13 @@ class Attempt:
 @dataclass
 class Mapping:
     """The models kept (largest first), the mapper that made them and why that one, and what each
-    mapper run made."""
+    mapper run made; the photos taken out of the kept models, and why (:mod:`recon.sparse.pose_check`)."""
 
     models: list
     mapper: str
     why: str
     attempts: list[Attempt]
+    taken_out: dict[str, str] = field(default_factory=dict)
 
 
 def reconstruct(database: Path, images: Path, cfg, seed: int, start=None) -> Mapping:
@@ -77,18 +78,19 @@ def reconstruct(database: Path, images: Path, cfg, seed: int, start=None) -> Map
     global mapper, which needs only each pair's geometry, joins them."""
     with read_only(database) as db:
         photos = len(image_ids(db))
-    models = _map(cfg.mapper, database, images, cfg, seed, start)
+    taken_out: dict[str, dict[str, str]] = {cfg.mapper: {}, "global": {}}
+    models = _map(cfg.mapper, database, images, cfg, seed, start, taken_out[cfg.mapper])
     first = Attempt.of(cfg.mapper, models)
     short = shortfall(first, photos) if cfg.mapper == "incremental" else None
     if short is None or not cfg.mapper_fallback:
         why = f"sfm.mapper is {cfg.mapper}" + (f" ({short}; sfm.mapper_fallback is off)" if short else "")
-        return Mapping(models, cfg.mapper, why, [first])
+        return Mapping(models, cfg.mapper, why, [first], taken_out[cfg.mapper])
     log.info("sfm: %s: running the global mapper too", short)
-    fallback = _map("global", database, images, cfg, seed)
+    fallback = _map("global", database, images, cfg, seed, taken_out=taken_out["global"])
     second = Attempt.of("global", fallback)
     mapper, why = choose(first, second, photos)
     log.info("sfm: %s model kept: %s", mapper, why)
-    return Mapping(fallback if mapper == "global" else models, mapper, why, [first, second])
+    return Mapping(fallback if mapper == "global" else models, mapper, why, [first, second], taken_out[mapper])
 
 
 def shortfall(attempt: Attempt, photos: int) -> str | None:
@@ -117,8 +119,14 @@ def choose(incremental: Attempt, fallback: Attempt, photos: int) -> tuple[str, s
     return "global", f"{short}; {fallback.describe(photos)}"
 
 
-def _map(mapper: str, database: Path, images: Path, cfg, seed: int, start=None) -> list:
+def _map(mapper: str, database: Path, images: Path, cfg, seed: int, start=None,
+         taken_out: dict[str, str] | None = None) -> list:
+    """The mapper's models, largest first, without the photos whose pose their strongest verified pairs
+    contradict (:mod:`recon.sparse.pose_check`; their names and why into ``taken_out``), each refined by
+    :func:`final_bundle_adjustment`."""
     import pycolmap
+
+    from recon.sparse.pose_check import take_out_contradicted
 
     pycolmap.set_random_seed(seed)
     with tempfile.TemporaryDirectory(prefix="recon-sfm-") as scratch, private_copy(database) as copy:
@@ -140,6 +148,10 @@ def _map(mapper: str, database: Path, images: Path, cfg, seed: int, start=None) 
         else:
             models = pycolmap.incremental_mapping(str(copy), str(images), scratch,
                                                   incremental_options(cfg, seed), input_path=start_path)
+    for rec in models.values():
+        dropped = take_out_contradicted(rec, database)
+        if taken_out is not None:
+            taken_out |= dropped
     ordered = sorted(models.values(), key=lambda r: (-r.num_reg_images(), -r.num_points3D()))
     if cfg.final_ba_iterations:
         with read_only(database) as db:
@@ -279,9 +291,10 @@ def ba_options(cfg, principal_point: bool):
 
 
 def registration_report(database: Path, models: list, min_matches: int, init_min_tri_angle: float = 16.0,
-                        min_model_size: int = 3) -> dict:
-    """Per model: registered photos; per unregistered photo: the reason, from its verified matches;
-    with no model, ``reason``: what the database shows about why (:func:`_no_model_reason`)."""
+                        min_model_size: int = 3, taken_out: dict[str, str] | None = None) -> dict:
+    """Per model: registered photos; per unregistered photo: the reason (``taken_out``'s where a photo
+    was taken out of the model, else from its verified matches); with no model, ``reason``: what the
+    database shows about why (:func:`_no_model_reason`)."""
     import pycolmap
 
     with read_only(database) as db:
@@ -304,6 +317,8 @@ def registration_report(database: Path, models: list, min_matches: int, init_min
             continue
         if name in in_model:
             unregistered[name] = f"registered in separate model {in_model[name]} (no overlap with the largest)"
+        elif taken_out and name in taken_out:
+            unregistered[name] = taken_out[name]
         elif not partners[image_id]:
             unregistered[name] = f"too few matches: no other photo shares {min_matches}+ verified matches with it"
         else:

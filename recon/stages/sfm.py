@@ -107,7 +107,7 @@ class SfmConfig:
 @register
 class Sfm(Stage):
     name = "sfm"
-    version = 7
+    version = 8
     Config = SfmConfig
     requires = (PreparedPhotos, FeatureDatabase, MatchDatabase)
     produces = SparseModel
@@ -132,7 +132,7 @@ class Sfm(Stage):
                 else continuation.continue_model(database, images, cfg, ctx.seed, start))
         models = made.models
         report = mapping.registration_report(database, models, cfg.min_num_matches, cfg.init_min_tri_angle,
-                                              cfg.min_model_size)
+                                              cfg.min_model_size, made.taken_out)
         if not models:
             tried = f": {made.why}" if len(made.attempts) > 1 else ""  # the global mapper's model refused, or none
             raise StageError(f"sfm: no model could be built{tried}. {report['reason']}")

@@ -75,7 +75,7 @@ def fake_mappers(monkeypatch, tmp_path):
     made = {"incremental": [_Model(9), _Model(8), _Model(6), _Model(6)], "global": [_Model(29)]}
     calls = []
 
-    def fake_map(mapper, database, images, cfg, seed, start=None):
+    def fake_map(mapper, database, images, cfg, seed, start=None, taken_out=None):
         calls.append(mapper)
         return made[mapper]
 
