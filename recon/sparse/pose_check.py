@@ -18,6 +18,9 @@ or its partner can be the misplaced photo. Measured on 49 models: the 15 zoo sce
 dino_sparse_ring). No right pose was flagged, and the median pair agrees on all its inliers. Two models
 had photos flagged, and every flagged photo was wrong: view_005 above, and four photos of turntable_black
 (12 photos at 480x360, the global mapper's model) that were 75-170 degrees off.
+
+Only perspective cameras are checked (and paired): the distance is measured on the image plane, which a
+fisheye's or a 360 camera's rays behind it do not reach.
 """
 
 from __future__ import annotations
@@ -43,7 +46,8 @@ def contradicted(rec, database: Path) -> dict[int, str]:
     pairs contradict (module doc)."""
     import pycolmap
 
-    registered = set(rec.reg_image_ids())
+    registered = {image_id for image_id in rec.reg_image_ids()
+                  if rec.camera(rec.image(image_id).camera_id).is_perspective_pinhole()}
     out = {}
     with private_copy(database) as copy, opened(copy) as db:
         pairs: dict[int, list[tuple[int, int]]] = {}

@@ -63,7 +63,9 @@ def test_pinhole_model_on_fisheye_photos_is_warned_about(fisheye, tmp_path, capl
     warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert any(w.startswith("sfm: camera 1 (SIMPLE_RADIAL)") and "OPENCV_FISHEYE" in w for w in warned), warned
     poses = evaluate(tmp_path / "ws", fisheye.root)["poses"]
-    assert poses["registered"] == 20 and poses["auc@5"] < 30  # why the warning matters: measured 7.7
+    # why the warning matters: measured AUC@5 7.7; of these wrong poses, the pose check takes out view_012,
+    # which two of its three strongest pairs contradict
+    assert poses["registered"] >= 19 and poses["auc@5"] < 30
 
 
 def test_room_walk_panoramas(room, room_run):
