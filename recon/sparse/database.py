@@ -71,6 +71,15 @@ def read_keypoints(con: sqlite3.Connection, image_id: int) -> np.ndarray:
     return np.frombuffer(data, dtype=np.float32).reshape(rows, cols).copy()
 
 
+def read_inlier_matches(con: sqlite3.Connection, pair_id: int) -> np.ndarray:
+    """A pair's verified inlier matches (M x 2 keypoint indices, first image then second)."""
+    row = con.execute("SELECT rows, data FROM two_view_geometries WHERE pair_id = ?", (pair_id,)).fetchone()
+    if row is None or not row[0]:
+        return np.zeros((0, 2), np.uint32)
+    rows, data = row
+    return np.frombuffer(data, dtype=np.uint32).reshape(rows, 2).copy()
+
+
 def stored_camera_params(con: sqlite3.Connection) -> dict[int, np.ndarray]:
     """Camera id -> its stored intrinsic parameters (where the mapper starts from)."""
     return {camera_id: np.frombuffer(params, dtype=np.float64).copy()

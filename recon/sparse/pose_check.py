@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.sparse.database import opened, private_copy
+from recon.sparse.database import read_inlier_matches, read_keypoints, read_only
 
 log = logging.getLogger(__name__)
 
@@ -49,9 +49,9 @@ def contradicted(rec, database: Path) -> dict[int, str]:
     registered = {image_id for image_id in rec.reg_image_ids()
                   if rec.camera(rec.image(image_id).camera_id).is_perspective_pinhole()}
     out = {}
-    with private_copy(database) as copy, opened(copy) as db:
+    with read_only(database) as db:
         pairs: dict[int, list[tuple[int, int]]] = {}
-        for pair_id, inliers in zip(*db.read_two_view_geometry_num_inliers(), strict=True):
+        for pair_id, inliers in db.execute("SELECT pair_id, rows FROM two_view_geometries"):
             a, b = pycolmap.pair_id_to_image_pair(pair_id)
             if a in registered and b in registered and inliers >= MIN_PAIR_INLIERS:
                 pairs.setdefault(a, []).append((inliers, b))
@@ -60,7 +60,7 @@ def contradicted(rec, database: Path) -> dict[int, str]:
             checked = []
             for inliers, other in sorted(pairs.get(image_id, []), reverse=True)[:TOP_PAIRS]:
                 a, b = min(image_id, other), max(image_id, other)
-                share = agreement(rec, db, a, b, db.read_two_view_geometry(a, b).inlier_matches)
+                share = agreement(rec, db, a, b, read_inlier_matches(db, pycolmap.image_pair_to_pair_id(a, b)))
                 if share is not None:
                     checked.append((rec.image(other).name, inliers, share))
             if checked and sum(share < MIN_AGREEING for _, _, share in checked) > len(checked) / 2:
@@ -71,14 +71,15 @@ def contradicted(rec, database: Path) -> dict[int, str]:
 
 
 def agreement(rec, db, a: int, b: int, matches: np.ndarray) -> float | None:
-    """The share of the inlier ``matches`` (M, 2 keypoint indices) of images ``a`` and ``b`` within
+    """The share of the inlier ``matches`` (M, 2 keypoint indices; ``db``: a read-only connection to the
+    database) of images ``a`` and ``b`` within
     :data:`MAX_EPIPOLAR_PX` of the epipolar geometry of their poses in ``rec``; None where the two
     centres coincide (no epipolar geometry)."""
     image_a, image_b = rec.image(a), rec.image(b)
     cam_a, cam_b = rec.camera(image_a.camera_id), rec.camera(image_b.camera_id)
     rays = []
     for cam, image_id, column in ((cam_a, a, 0), (cam_b, b, 1)):
-        pixels = np.asarray(db.read_keypoints(image_id), np.float64)[matches[:, column], :2]
+        pixels = read_keypoints(db, image_id)[matches[:, column], :2].astype(np.float64)
         rays.append(np.c_[cam.cam_from_img(pixels), np.ones(len(pixels))])
     pose_a, pose_b = image_a.cam_from_world(), image_b.cam_from_world()
     rotation = pose_b.rotation.matrix() @ pose_a.rotation.matrix().T

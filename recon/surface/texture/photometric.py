@@ -54,8 +54,7 @@ class Calibration:
     falloff: np.ndarray
 
     def vignetting(self, j: int, r2: np.ndarray) -> np.ndarray:
-        a, b = self.falloff[self.group[j]]
-        return np.maximum(1.0 + a * r2 + b * r2 * r2, _LOWEST)
+        return np.maximum(_falloff(*self.falloff[self.group[j]], r2), _LOWEST)
 
     def apply(self, j: int, photo: np.ndarray, cam) -> np.ndarray:
         """Photo ``j`` (H, W, 3; 0-255) as it would look at the median gain and without vignetting."""
@@ -86,7 +85,7 @@ def calibrate(face: np.ndarray, view: np.ndarray, colours: np.ndarray, radius2: 
         return Calibration(gain, group, falloff)
     for _ in range(_ROUNDS):
         a, b = falloff[group[v]].T
-        vig = np.maximum(1.0 + a * r2 + b * r2 * r2, _LOWEST)[:, None]
+        vig = np.maximum(_falloff(a, b, r2), _LOWEST)[:, None]
         albedo = face_median(f, c / (gain[v] * vig), n_faces)
         gain = view_median(v, c / (albedo[f] * vig), n_views)
         gain /= np.median(gain, axis=0)
@@ -124,11 +123,15 @@ def _fit_falloff(r2: np.ndarray, ratio: np.ndarray) -> tuple[float, float]:
     if s <= 0:
         return 0.0, 0.0
     a, b = a / s, b / s
-    r2 = np.linspace(0.0, 1.0, 21)
-    falloff = 1.0 + a * r2 + b * r2 * r2
-    if falloff.max() > _BRIGHTEST or falloff.min() < _LOWEST:
+    out_to_corners = _falloff(a, b, np.linspace(0.0, 1.0, 21))
+    if out_to_corners.max() > _BRIGHTEST or out_to_corners.min() < _LOWEST:
         return 0.0, 0.0
     return a, b
+
+
+def _falloff(a, b, r2):
+    """V(r) = 1 + a r^2 + b r^4 at squared normalised radii ``r2`` (module doc)."""
+    return 1.0 + a * r2 + b * r2 * r2
 
 
 def calibrate_photos(quality: np.ndarray, vertices: np.ndarray, faces: np.ndarray, images: Sequence[np.ndarray],
