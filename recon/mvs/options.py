@@ -17,10 +17,13 @@ class MVSOptions:
                         "source) rather than 2 or 3 finds surface that only two or three photos see (zoo, docs/DECISIONS.md)", ge=1, le=32)
     min_triangulation_angle: float = opt(3.0, "source views whose shared points are seen under a smaller angle (deg) do not count", ge=0.0, le=45.0)
     max_scale_ratio: float = opt(2.0, "source views seeing the shared points at a resolution differing by more than this factor are skipped", ge=1.0)
-    depth_margin: float = opt(0.25, "depth range: 1st percentile of the view's own sparse point depths / (1 + margin) / near_reach to the farthest sparse point in its view * (1 + margin)", ge=0.0, le=4.0)
+    depth_margin: float = opt(0.25, "depth range: 1st percentile of the view's own sparse point depths / (1 + margin) / near_reach to the farthest sparse point in its view * (1 + margin) * far_reach", ge=0.0, le=4.0)
     near_reach: float = opt(3.0, "the depth range starts this many times nearer than the view's own sparse points do: "
                                  "foreground no sparse point lies on (a tree or a bin in front of a walk's photos) "
                                  "is searched too (zoo, docs/DECISIONS.md)", ge=1.0, le=100.0)
+    far_reach: float = opt(2.5, "the depth range ends this many times farther than the farthest sparse point in view: "
+                                "far ground that few photos see at grazing angles has few or no sparse points "
+                                "(zoo, docs/DECISIONS.md)", ge=1.0, le=100.0)
     window_radius: int = opt(5, "half size of the matching window (px at the working level)", ge=1, le=15)
     window_step: int = opt(2, "sampling stride inside the matching window (px); 2 reads a quarter of its pixels", ge=1, le=4)
     sigma_color: float = opt(0.1, "bilateral weight: intensity scale (intensities in [0, 1]); 0.1 rather than 0.2 keeps a window's weight on the pixels like its centre (zoo at 320x240: fused and mesh F@0.2 % up, docs/DECISIONS.md)", gt=0.0)

@@ -28,7 +28,7 @@ def test_every_view_gets_sources_and_a_depth_range_holding_its_surface(small_sce
         truth = scene.depth(problem.ref)
         low, high = np.percentile(truth[truth > 0], [1, 99])
         assert problem.depth_min <= low and high <= problem.depth_max
-        assert problem.depth_max < 4 * high  # a margin, not an unbounded range
+        assert problem.depth_max < 2 * MVSOptions().far_reach * high  # a reach, not an unbounded range
 
 
 def test_the_far_bound_reaches_the_points_in_view_that_three_other_photos_agree_on(reconstruction):
@@ -59,8 +59,27 @@ def test_the_far_bound_reaches_the_points_in_view_that_three_other_photos_agree_
     assert range_of(moved(2, [0.0, 0.0, far])) == range_of(before)
     after = moved(3, [0.0, 0.0, far])[image.name]
     # (its sources see the point a little deeper, and the view reaches as far as they do)
-    assert far * (1 + MVSOptions().depth_margin) <= after.depth_max < 1.01 * far * (1 + MVSOptions().depth_margin)
+    reach = (1 + MVSOptions().depth_margin) * MVSOptions().far_reach
+    assert far * reach <= after.depth_max < 1.01 * far * reach
     assert after.depth_min == before[image.name].depth_min  # the near bound stays on the view's own points
+
+
+def test_the_far_bound_reaches_far_surface_that_the_sparse_model_does_not_hold(small_scene, reconstruction):
+    """With few photos the sparse model holds little of the far ground (the zoo's far_field with 16:
+    4 of 487 points beyond 20 m, ranges ending at 24-30 m against 38-42 m). With every sparse point
+    deeper than 60 % of a view's true 99th percentile depth removed, the range still holds its surface;
+    without the far reach it does not."""
+    truth = load_scene(small_scene / "scene").depth("view_002.jpg")
+    high = np.percentile(truth[truth > 0], 99)
+    rec = pycolmap.Reconstruction(reconstruction)
+    _, cam = _view(rec, "view_002.jpg")
+    for pid in [pid for pid, p in rec.points3D.items() if cam.R[2] @ p.xyz + cam.t[2] > 0.6 * high]:
+        rec.delete_point3D(pid)
+
+    def far_bound(options):
+        return {p.ref: p for p in select_problems(rec, options)}["view_002.jpg"].depth_max
+
+    assert far_bound(MVSOptions(far_reach=1.0)) < high <= far_bound(MVSOptions())
 
 
 def test_points_of_the_view_that_only_two_photos_matched_do_not_set_its_far_bound(reconstruction):
@@ -97,7 +116,7 @@ def test_a_view_reaches_as_far_as_its_sources_reach(reconstruction):
                and all(e.image_id != image.image_id for e in p.track.elements))
     rec.points3D[pid].xyz = point
     after = {p.ref: p for p in select_problems(rec)}
-    assert after[source.name].depth_max == pytest.approx(far * (1 + MVSOptions().depth_margin))
+    assert after[source.name].depth_max == pytest.approx(far * (1 + MVSOptions().depth_margin) * MVSOptions().far_reach)
     assert after[image.name].depth_max == after[source.name].depth_max
     assert after[image.name].depth_min == before[image.name].depth_min
 
