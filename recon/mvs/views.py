@@ -19,19 +19,19 @@ counted as well, on the zoo's street_forward (a forward walk) the views behind e
 all of its points from farther away, outranked the views ahead, and its fused F@0.2 % fell .806 ->
 .761 (docs/DECISIONS.md).
 
-The depth range runs from the 1st percentile of the depths of the points the reference observes, / (1 +
-margin) / ``near_reach``, to the depth of the farthest sparse point in front of it that projects into its
-image, observed by it or not, whose track holds at least three photos, * (1 + margin) * ``far_reach``.
-Far ground seen at a grazing angle gives the view that looks along it few matched features, while other
-views triangulate it: on the zoo's far_field at 320x240 the 99th percentile of the view's own points left
-48 % of the observable surface beyond the range, the farthest point in view 1 %. A far bound costs
-little: PatchMatch samples depths uniformly in inverse depth, and [1/far, 1/near] grew by 9 % (far_field)
-and 22 % (transient_car); the near bound, which sets that interval's scale, stays on the view's own
-points (a percentile: one stray near point would spread the samples). A point only two photos matched
-does not count: the zoo's aerial_grid held 30-40 such points in each view's frame at 11 to 17 times the
-ground's depth, and facade_walk some at 16 to 25 times its facade's. In ranges that deep the depth maps
-agreed on points far below aerial_grid's ground (to 120 units under a scene 116 across; 95 % of them
-within 11 once these points no longer count), and its mesh F@0.2 % rose .703 -> .747 without them
+The depth range runs from the 1st percentile of the depths of the points the reference observes,
+/ (1 + margin) / ``near_reach``, to the depth of the farthest sparse point in front of it that projects
+into its image, observed by it or not, whose track holds at least three photos,
+* (1 + margin) * ``far_reach``. Far ground seen at a grazing angle gives the view that looks along it few
+matched features, while other views triangulate it: on the zoo's far_field at 320x240 the 99th percentile
+of the view's own points left 48 % of the observable surface beyond the range, the farthest point in view
+1 %. A far bound costs little: PatchMatch samples depths uniformly in inverse depth, and [1/far, 1/near]
+grew by 9 % (far_field) and 22 % (transient_car); the near bound, which sets that interval's scale, stays
+on the view's own points (a percentile: one stray near point would spread the samples). A point only two
+photos matched does not count: the zoo's aerial_grid held 30-40 such points in each view's frame at 11 to
+17 times the ground's depth, and facade_walk some at 16 to 25 times its facade's. In ranges that deep the
+depth maps agreed on points far below aerial_grid's ground (to 120 units under a scene 116 across; 95 %
+of them within 11 once these points no longer count), and its mesh F@0.2 % rose .703 -> .747 without them
 (docs/DECISIONS.md). The view's own points count no differently: only where fewer than ``min_points``
 such points lie in its image does the 99th percentile of its own points' depths set the bound. Where a
 corner photo of a survey shares much of its ground with one other photo, more than 1 % of its own points
@@ -47,7 +47,7 @@ A view then reaches as far as its sources reach: its far bound is the largest of
 sources'. A view looking along far ground can miss sparse points its sources triangulated there
 outside its own frame, as at the edge of its image: 8 of far_field's 24 views at 640x480 had ranges
 ending short of their surface (one at 28 m against 45 m), and with this rule none did (docs/DECISIONS.md).
-The far bound still reaches ``far_reach`` (2.5) times past the farthest such point: with fewer photos
+The far bound then reaches ``far_reach`` (2.5) times past the sparse point that sets it: with fewer photos
 the sparse model holds hardly any of the far ground. far_field with 16 photos had 487 sparse points,
 four of them beyond 20 m; every range ended at 24-30 m against a true 99th percentile of 38-42 m, and
 the fused cloud held 55 % of the observable surface (fused F@0.2 % .709; with the reach .885). The
