@@ -56,13 +56,23 @@ def contradicted(rec, database: Path) -> dict[int, str]:
             if a in registered and b in registered and inliers >= MIN_PAIR_INLIERS:
                 pairs.setdefault(a, []).append((inliers, b))
                 pairs.setdefault(b, []).append((inliers, a))
+        keypoints: dict[int, np.ndarray] = {}
+        shares: dict[tuple[int, int], float | None] = {}  # each pair's, measured once
+
+        def pixels(image_id: int) -> np.ndarray:  # each photo's keypoints, read once
+            if image_id not in keypoints:
+                keypoints[image_id] = read_keypoints(db, image_id)[:, :2].astype(np.float64)
+            return keypoints[image_id]
+
         for image_id in sorted(registered):
             checked = []
             for inliers, other in sorted(pairs.get(image_id, []), reverse=True)[:TOP_PAIRS]:
                 a, b = min(image_id, other), max(image_id, other)
-                share = agreement(rec, db, a, b, read_inlier_matches(db, pycolmap.image_pair_to_pair_id(a, b)))
-                if share is not None:
-                    checked.append((rec.image(other).name, inliers, share))
+                if (a, b) not in shares:
+                    matches = read_inlier_matches(db, pycolmap.image_pair_to_pair_id(a, b))
+                    shares[a, b] = agreement(rec, a, b, pixels(a)[matches[:, 0]], pixels(b)[matches[:, 1]])
+                if shares[a, b] is not None:
+                    checked.append((rec.image(other).name, inliers, shares[a, b]))
             if checked and sum(share < MIN_AGREEING for _, _, share in checked) > len(checked) / 2:
                 out[image_id] = ("registered where its strongest verified pairs contradict its pose (" +
                                  ", ".join(f"{name}: {share:.0%} of {n} inliers agree" for name, n, share in checked)
@@ -70,17 +80,14 @@ def contradicted(rec, database: Path) -> dict[int, str]:
     return out
 
 
-def agreement(rec, db, a: int, b: int, matches: np.ndarray) -> float | None:
-    """The share of the inlier ``matches`` (M, 2 keypoint indices; ``db``: a read-only connection to the
-    database) of images ``a`` and ``b`` within
-    :data:`MAX_EPIPOLAR_PX` of the epipolar geometry of their poses in ``rec``; None where the two
+def agreement(rec, a: int, b: int, pixels_a: np.ndarray, pixels_b: np.ndarray) -> float | None:
+    """The share of the inlier matches of images ``a`` and ``b`` (their pixels: M x 2 each, row for row)
+    within :data:`MAX_EPIPOLAR_PX` of the epipolar geometry of their poses in ``rec``; None where the two
     centres coincide (no epipolar geometry)."""
     image_a, image_b = rec.image(a), rec.image(b)
     cam_a, cam_b = rec.camera(image_a.camera_id), rec.camera(image_b.camera_id)
-    rays = []
-    for cam, image_id, column in ((cam_a, a, 0), (cam_b, b, 1)):
-        pixels = read_keypoints(db, image_id)[matches[:, column], :2].astype(np.float64)
-        rays.append(np.c_[cam.cam_from_img(pixels), np.ones(len(pixels))])
+    rays = [np.c_[cam.cam_from_img(pixels), np.ones(len(pixels))]
+            for cam, pixels in ((cam_a, pixels_a), (cam_b, pixels_b))]
     pose_a, pose_b = image_a.cam_from_world(), image_b.cam_from_world()
     rotation = pose_b.rotation.matrix() @ pose_a.rotation.matrix().T
     baseline = pose_b.translation - rotation @ pose_a.translation

@@ -94,7 +94,7 @@ def calibrate(face: np.ndarray, view: np.ndarray, colours: np.ndarray, radius2: 
         ratio = (c / (albedo[f] * gain[v])).mean(axis=1)
         falloff = np.array([_fit_falloff(r2[group[v] == k], ratio[group[v] == k]) for k in range(n_groups)])
     log.info("photometric calibration: gains %.2f-%.2f, vignetting at the corners %s", gain.min(), gain.max(),
-             ", ".join(f"{1 + a + b:.2f}" for a, b in falloff))
+             ", ".join(f"{_falloff(a, b, 1.0):.2f}" for a, b in falloff))
     if implausible.any():
         log.warning("photometric calibration: %d photo(s) left uncorrected: the colours they show of the mesh's faces "
                     "differ from the other photos' by more than %g times (poses off, or something else in view)",
