@@ -33,7 +33,7 @@ def write_exports(textured, out, georeference: dict | None = None) -> dict:
 @register
 class Texture(Stage):
     name = "texture"
-    version = 4
+    version = 5
     Config = TextureConfig
     requires = (SparseModel, DenseScene, SurfaceMesh)
     produces = TexturedModel

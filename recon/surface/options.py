@@ -74,5 +74,6 @@ class TextureOptions:
                                  "exposure) and raised it by 0.23 dB on the one with +-0.7 stops of exposure per photo "
                                  "(docs/DECISIONS.md)")
     levelling_weight: float = opt(10.0, "weight of the smoothness of the per-vertex colour corrections within a patch (seams weigh 1)", gt=0.0)
-    seam_blending: bool = opt(True, "local blending of the remaining colour differences in a band along seams")
+    seam_blending: bool = opt(True, "local blending of the remaining colour differences in a band along seams; "
+                                    "seam edges under two texels long are left out (recon.surface.texture.blending)")
     blend_band: int = opt(8, "width of the seam blending band in texels", ge=1, le=64)

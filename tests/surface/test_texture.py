@@ -1,4 +1,5 @@
 import importlib
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -54,6 +55,19 @@ def test_calibration_evens_out_seam_jumps_as_levelling_did(small_scene, mesh):
                                  TextureOptions(colour_calibration=False, seam_blending=False)))
     calibrated = seam_jump(texture_mesh(mesh, photos, small_scene.cameras, TextureOptions(seam_blending=False)))
     assert calibrated < 0.5 * raw
+
+
+def test_seams_shorter_than_two_texels_are_not_blended(small_scene, mesh):
+    # at a tenth of a texel per photo pixel the faces are smaller than the texels: what a seam's two
+    # lookups differ by there is no seam point's colour difference (recon.surface.texture.blending)
+    photos = with_gains(small_scene.images)
+    coarse = TextureOptions(colour_calibration=False, texel_scale=0.1)
+    blended = texture_mesh(mesh, photos, small_scene.cameras, coarse)
+    plain = texture_mesh(mesh, photos, small_scene.cameras, replace(coarse, seam_blending=False))
+    assert np.array_equal(blended.texture, plain.texture)
+    fine = TextureOptions(colour_calibration=False)
+    assert not np.array_equal(texture_mesh(mesh, photos, small_scene.cameras, fine).texture,
+                              texture_mesh(mesh, photos, small_scene.cameras, replace(fine, seam_blending=False)).texture)
 
 
 def test_texture_reproduces_the_photos(small_scene, mesh):
