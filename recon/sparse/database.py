@@ -86,6 +86,12 @@ def stored_camera_params(con: sqlite3.Connection) -> dict[int, np.ndarray]:
             for camera_id, params in con.execute("SELECT camera_id, params FROM cameras")}
 
 
+def cameras_with_exif_focal(con: sqlite3.Connection) -> frozenset[int]:
+    """Ids of the cameras whose stored focal length came from their photos' EXIF (COLMAP's
+    ``prior_focal_length`` flag), not from a guess."""
+    return frozenset(camera_id for camera_id, in con.execute("SELECT camera_id FROM cameras WHERE prior_focal_length"))
+
+
 def read_camera(con: sqlite3.Connection, image_id: int):
     """The pycolmap camera of an image, with its focal-length prior flag (COLMAP verifies a pair with
     an essential matrix only when both cameras have one, and a fisheye pair not at all without)."""

@@ -65,7 +65,8 @@ class SfmConfig:
     final_ba_iterations: int = opt(100, "iterations of a last global BA over the finished model (0 = off)", ge=0)
     final_refine_principal_point: bool = opt(
         True, "a last global BA also refines principal points, kept where that explains the observations "
-              "better (fountain_p11: AUC@5 93.3 -> 98.5); never while the model grows (unstable)")
+              "better (fountain_p11: AUC@5 93.3 -> 98.5) and takes no EXIF focal length's camera farther "
+              "from it; never while the model grows (unstable)")
     deterministic: bool = opt(False, "single-threaded mapping and bundle adjustment: bit-identical re-runs "
                                      "(multi-threaded runs agree to ~1e-3 of the camera spread), slower")
     georeference: Literal["auto", "off"] = opt(
@@ -107,7 +108,7 @@ class SfmConfig:
 @register
 class Sfm(Stage):
     name = "sfm"
-    version = 8
+    version = 9
     Config = SfmConfig
     requires = (PreparedPhotos, FeatureDatabase, MatchDatabase)
     produces = SparseModel

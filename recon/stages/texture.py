@@ -33,7 +33,7 @@ def write_exports(textured, out, georeference: dict | None = None) -> dict:
 @register
 class Texture(Stage):
     name = "texture"
-    version = 5
+    version = 6
     Config = TextureConfig
     requires = (SparseModel, DenseScene, SurfaceMesh)
     produces = TexturedModel

@@ -1,5 +1,5 @@
-"""The final bundle adjustment keeps distortion only where the observations call for it
-(recon.sparse.mapping.final_bundle_adjustment), on exactly known synthetic models."""
+"""The final bundle adjustment keeps distortion and principal points only where the observations call
+for them (recon.sparse.mapping.final_bundle_adjustment), on exactly known synthetic models."""
 
 import numpy as np
 import pycolmap
@@ -20,15 +20,16 @@ def _look_at(centre: np.ndarray) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z])
 
 
-def _model(k1: float, spread: float, seed: int = 0) -> pycolmap.Reconstruction:
+def _model(k1: float, spread: float, seed: int = 0, principal=(WIDTH / 2, HEIGHT / 2)) -> pycolmap.Reconstruction:
     """20 views on an orbit of radius 4 round points in a ball of radius ``spread`` (1.2 fills most
-    of each photo, 0.35 its middle), seen through one SIMPLE_RADIAL camera with distortion ``k1``;
-    observations are the exact projections plus Gaussian noise of NOISE_PX. The model starts from
-    the truth but with the distortion at zero, as a mapper's model would after refining it to the
-    noise: a bundle adjustment moves it from there."""
+    of each photo, 0.35 its middle), seen through one SIMPLE_RADIAL camera with distortion ``k1`` and
+    principal point ``principal``; observations are the exact projections plus Gaussian noise of
+    NOISE_PX. The model starts from the truth but with the distortion at zero and the principal point
+    at the centre, as a mapper's model would after refining it to the noise: a bundle adjustment moves
+    it from there."""
     rng = np.random.default_rng(seed)
     truth = pycolmap.Camera(model="SIMPLE_RADIAL", width=WIDTH, height=HEIGHT,
-                            params=[FOCAL, WIDTH / 2, HEIGHT / 2, k1], camera_id=1)
+                            params=[FOCAL, *principal, k1], camera_id=1)
     rec = pycolmap.Reconstruction()
     rec.add_camera_with_trivial_rig(pycolmap.Camera(model="SIMPLE_RADIAL", width=WIDTH, height=HEIGHT,
                                                     params=[FOCAL, WIDTH / 2, HEIGHT / 2, 0.0], camera_id=1))
@@ -78,3 +79,26 @@ def test_distortion_fitted_to_noise_in_the_middle_of_the_photos_is_left_out():
 def test_a_calibrated_distortion_is_where_it_is_held():
     rec = _final(_model(k1=-0.05, spread=0.35), -0.05)
     assert rec.cameras[1].params[3] == -0.05
+
+
+def test_principal_points_are_refined_unless_that_leaves_the_exif_focal_length():
+    """The true principal point 30 and 20 px off centre: held at the centre, the focal length comes out
+    0.35 % long; refined, both come back to the truth. With an EXIF focal length at the truth the
+    refinement is kept; with one on the long side, refining would take the focal length away from it,
+    and the principal point stays at the centre."""
+    model = _model(k1=0.0, spread=1.2, principal=(350.0, 260.0))
+    cfg = SfmConfig(refine_extra_params=False)
+
+    def final(exif_focal: float):
+        return final_bundle_adjustment(pycolmap.Reconstruction(model), cfg,
+                                       {1: np.array([exif_focal, WIDTH / 2, HEIGHT / 2, 0.0])}, frozenset({1}))
+
+    kept = final(FOCAL).cameras[1].params
+    assert kept[1:3] == pytest.approx([350.0, 260.0], abs=1.0)
+    assert kept[0] == pytest.approx(FOCAL, rel=0.001)
+    left = final(1.01 * FOCAL).cameras[1].params
+    assert list(left[1:3]) == [WIDTH / 2, HEIGHT / 2]
+    assert left[0] > 1.002 * FOCAL
+    without_exif = final_bundle_adjustment(pycolmap.Reconstruction(model), cfg,
+                                           {1: np.array([1.01 * FOCAL, WIDTH / 2, HEIGHT / 2, 0.0])})
+    assert without_exif.cameras[1].params[1:3] == pytest.approx([350.0, 260.0], abs=1.0)

@@ -70,17 +70,21 @@ def test_seams_shorter_than_two_texels_are_not_blended(small_scene, mesh):
                               texture_mesh(mesh, photos, small_scene.cameras, replace(fine, seam_blending=False)).texture)
 
 
-def test_texture_reproduces_the_photos(small_scene, mesh):
-    """Rendered into one of its own views, the texture gives back that photo where it was used."""
+@pytest.mark.parametrize(("texel_scale", "mix_ratio", "min_psnr"), [(1.0, 0.0, 38), (1.5, 0.0, 41), (1.5, 0.5, 37.5)])
+def test_texture_reproduces_the_photos(small_scene, mesh, texel_scale, mix_ratio, min_psnr):
+    """Rendered into one of its own views, the texture gives back that photo where it was used; also where
+    the atlas resamples the photos and mixes in others (recon.surface.texture.bake; with bilinear lookups
+    37.7 dB at 1.5 texels per pixel, 36.9 mixed)."""
     textured = texture_mesh(mesh, small_scene.images, small_scene.cameras,
-                            TextureOptions(levelling=False, seam_blending=False, mix_ratio=0.0, texel_scale=1.0))
+                            TextureOptions(levelling=False, seam_blending=False, mix_ratio=mix_ratio,
+                                           texel_scale=texel_scale))
     k = 3
     cam, photo = small_scene.cameras[k], small_scene.images[k]
     image, mask = render(textured, cam, photo.shape[1], photo.shape[0])
     ids = render_ids(scene_of(textured.vertices, textured.faces), cam, photo.shape[1], photo.shape[0])
     own = mask & (textured.face_view[np.maximum(ids["face"], 0)] == k)
     assert own.sum() > 1000
-    assert masked_psnr(image, photo, own) > 38
+    assert masked_psnr(image, photo, own) > min_psnr
 
 
 def test_small_atlas_limit_scales_charts_down(small_scene, mesh):
