@@ -66,21 +66,27 @@ def background(image: np.ndarray, untextured: np.ndarray, depth: np.ndarray, opt
     return _running_out(image, untextured, depth) | _running_out(smooth, untextured_pixels(smooth, options), depth)
 
 
-def clear_background(image: np.ndarray, untextured: np.ndarray, depth: np.ndarray, normal: np.ndarray,
-                     options: MVSOptions) -> int:
-    """Zero, in place, the depths and normals within ``options.window_radius`` px of the background
-    (:func:`background`) whose intensity lies within ``options.sigma_color / 2`` of the nearest background
-    pixel's. Returns how many went."""
+def background_reach(image: np.ndarray, untextured: np.ndarray, depth: np.ndarray,
+                     options: MVSOptions) -> np.ndarray:
+    """Bool mask of the background (:func:`background`) and of the pixels within ``options.window_radius``
+    px of it whose intensity lies within ``options.sigma_color / 2`` of the nearest background pixel's:
+    the pixels the matching window may have given a surface's depth (module doc). Empty without a
+    background."""
     sky = background(image, untextured, depth, options)
     if not sky.any():
-        return 0
+        return sky
     distance, nearest = cv2.distanceTransformWithLabels((~sky).astype(np.uint8), cv2.DIST_L2, 5,
                                                         labelType=cv2.DIST_LABEL_PIXEL)
     rows, cols = np.nonzero(sky)
     shade_of = np.zeros(int(nearest.max()) + 1, np.float32)
     shade_of[nearest[rows, cols]] = image[rows, cols]
-    drop = (depth > 0) & (distance <= options.window_radius) & \
-        (np.abs(image - shade_of[nearest]) <= options.sigma_color / 2)
+    return (distance <= options.window_radius) & (np.abs(image - shade_of[nearest]) <= options.sigma_color / 2)
+
+
+def clear_background(image: np.ndarray, untextured: np.ndarray, depth: np.ndarray, normal: np.ndarray,
+                     options: MVSOptions) -> int:
+    """Zero, in place, the depths and normals of :func:`background_reach`. Returns how many went."""
+    drop = (depth > 0) & background_reach(image, untextured, depth, options)
     depth[drop] = 0
     normal[drop] = 0
     return int(np.count_nonzero(drop))

@@ -22,7 +22,7 @@ import trimesh
 from recon.imaging.masks import mask_at
 from recon.mvs.views import ViewCamera
 from recon.surface.cleanup import keep_faces
-from recon.surface.raycast import points_in_view, scene_of
+from recon.surface.raycast import cast_size, points_in_view, scene_of
 
 #: a face centre counts as seen when it lies at most this far (relative) behind the view's first hit
 DEPTH_TOLERANCE = 1e-3
@@ -39,13 +39,18 @@ def masked_faces(vertices: np.ndarray, faces: np.ndarray, views: list[ViewCamera
     bad = np.zeros(len(faces), bool)
     for view in views:
         mask = masks.get(view.name)
-        if mask is None:
-            continue
-        at = points_in_view(scene, view, centres)
-        idx = np.flatnonzero(at["inside"] & (at["z"] <= at["first"] * (1 + DEPTH_TOLERANCE)))  # the faces it sees
-        subject = _grown(mask_at(mask, at["width"], at["height"]))
-        bad[idx[~subject[at["row"][idx], at["col"][idx]]]] = True
+        if mask is not None:
+            bad[seen_on(scene, centres, view, ~_grown(mask_at(mask, *cast_size(view))))] = True
     return bad
+
+
+def seen_on(scene, points: np.ndarray, view: ViewCamera, mask: np.ndarray) -> np.ndarray:
+    """Indices of the ``points`` (N, 3; face centres of the mesh ray cast in ``scene``) that ``view`` sees
+    (in front of its first hit on the mesh) on a True pixel of ``mask`` (bool, any resolution)."""
+    at = points_in_view(scene, view, points)
+    idx = np.flatnonzero(at["inside"] & (at["z"] <= at["first"] * (1 + DEPTH_TOLERANCE)))
+    shown = mask_at(mask, at["width"], at["height"])
+    return idx[shown[at["row"][idx], at["col"][idx]]]
 
 
 def _grown(subject: np.ndarray) -> np.ndarray:

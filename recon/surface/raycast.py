@@ -53,6 +53,12 @@ def render_ids(scene, cam, width: int, height: int) -> dict[str, np.ndarray]:
 VISIBILITY_SIZE = 800
 
 
+def cast_size(view) -> tuple[int, int]:
+    """(width, height) at which ``view`` is ray cast: at most ``VISIBILITY_SIZE`` px on its longer side."""
+    scale = min(1.0, VISIBILITY_SIZE / max(view.width, view.height))
+    return max(1, round(view.width * scale)), max(1, round(view.height * scale))
+
+
 def points_in_view(scene, view, points: np.ndarray) -> dict:
     """Where each of ``points`` (N, 3) lies in ``view`` (a camera with K, R, t, width, height), ray cast
     at most ``VISIBILITY_SIZE`` px: ``inside`` (in front of the camera, within the frame), ``row`` and
@@ -61,8 +67,7 @@ def points_in_view(scene, view, points: np.ndarray) -> dict:
     (N,); and ``width`` and ``height``, the cast size."""
     from recon.mvs.views import scaled_to
 
-    scale = min(1.0, VISIBILITY_SIZE / max(view.width, view.height))
-    width, height = max(1, round(view.width * scale)), max(1, round(view.height * scale))
+    width, height = cast_size(view)
     cam = scaled_to(view, width, height)
     depth = render_ids(scene, cam, width, height)["depth"]
     uv, z = project(cam.K, cam.R, cam.t, points)
