@@ -35,15 +35,14 @@ import cv2
 import numpy as np
 import trimesh
 
-from recon.geometry.transforms import camera_center
 from recon.mvs.background import background_reach
 from recon.mvs.free_space import AGREE, agreeing_points
 from recon.mvs.options import MVSOptions
 from recon.mvs.patchmatch import untextured
 from recon.mvs.views import ViewCamera
 from recon.surface.masking import seen_on
-from recon.surface.raycast import cast, scene_of
-from recon.surface.seen_through import BEHIND
+from recon.surface.raycast import scene_of
+from recon.surface.seen_through import mesh_behind
 
 
 def backdrop_rim(image: np.ndarray, depth: np.ndarray, options: MVSOptions) -> np.ndarray:
@@ -70,10 +69,6 @@ def backdrop_faces(mesh: trimesh.Trimesh, views: Iterable[tuple[ViewCamera, np.n
     for view, depth, rim in views:
         if rim.any():
             shown = seen_on(scene, centres, view, rim)
-            ray = centres[shown] - camera_center(view.R, view.t)
-            distance = np.linalg.norm(ray, axis=1, keepdims=True)
-            ray /= distance
-            open_behind = cast(scene, centres[shown] + ray * (BEHIND * distance), ray)["face"] < 0
-            showing[shown[open_behind]] += 1
+            showing[shown[~mesh_behind(scene, centres[shown], view)]] += 1
         agreeing += agreeing_points(centres, view, depth, AGREE)
     return showing > agreeing

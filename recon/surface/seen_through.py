@@ -43,9 +43,14 @@ def seen_through_faces(mesh: trimesh.Trimesh, views: Iterable[tuple[ViewCamera, 
         through += see
         hit = np.flatnonzero(see)
         if len(hit):
-            ray = centres[hit] - camera_center(cam.R, cam.t)
-            distance = np.linalg.norm(ray, axis=1, keepdims=True)
-            ray /= distance
-            behind = cast(scene, centres[hit] + ray * (BEHIND * distance), ray)["face"] >= 0
-            uncovering[hit] += behind
+            uncovering[hit] += mesh_behind(scene, centres[hit], cam)
     return (through > agreeing) & (2 * uncovering >= through)
+
+
+def mesh_behind(scene, points: np.ndarray, cam: ViewCamera) -> np.ndarray:
+    """Per point of ``points`` (N, 3) on the mesh ray cast in ``scene``: whether a ray from just past it
+    (``BEHIND``, relative to its distance from ``cam``), along ``cam``'s line of sight, hits the mesh."""
+    ray = points - camera_center(cam.R, cam.t)
+    distance = np.linalg.norm(ray, axis=1, keepdims=True)
+    ray /= distance
+    return cast(scene, points + ray * (BEHIND * distance), ray)["face"] >= 0
