@@ -180,7 +180,9 @@ def bench_dense(out: Path) -> None:
     nothing = float("nan")  # no PSNR where the mesh shows nothing of the held-out views' surface
     print(f"held-out views: textured {held_out.get('psnr', nothing):.2f} dB, vertex colours "
           f"{held_out.get('psnr_vertex_colours', nothing):.2f} dB, coverage {held_out['coverage']:.3f} "
-          f"(OpenMVS 2.3 TextureMesh: {OPENMVS['psnr']} dB, coverage {OPENMVS['coverage']})")
+          f"(OpenMVS 2.3 TextureMesh: {OPENMVS['psnr']} dB, coverage {OPENMVS['coverage']}); placed by recon "
+          f"localize ({held_out['placed']} views): textured {held_out.get('psnr_placed', nothing):.2f} dB, vertex "
+          f"colours {held_out.get('psnr_vertex_colours_placed', nothing):.2f} dB")
     photos = sum(p.stat().st_size for p in (scene_dir / "images").iterdir())
     print(f"workspace: {_bytes_on_disk(ws) / 1e6:.0f} MB besides the photos ({photos / 1e6:.1f} MB)")
 

@@ -11,7 +11,7 @@ import numpy as np
 import trimesh
 
 from recon.imaging.pixels import sample_bilinear
-from recon.surface.raycast import render_ids, scene_of
+from recon.surface.raycast import cast, pixel_rays, scene_of
 from recon.surface.texture import TexturedMesh
 from recon.surface.texture.topology import face_adjacency
 
@@ -35,12 +35,18 @@ def render(mesh: trimesh.Trimesh | TexturedMesh, cam, width: int, height: int,
            vertex_colors: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Image (H, W, 3; float 0-255) and coverage mask of ``mesh`` seen by ``cam`` (K, R, t); with
     ``vertex_colors`` a TexturedMesh is drawn from its vertex colours instead of its texture."""
+    return render_rays(mesh, *pixel_rays(cam, width, height), vertex_colors)
+
+
+def render_rays(mesh: trimesh.Trimesh | TexturedMesh, origins: np.ndarray, directions: np.ndarray,
+                vertex_colors: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`render` along given rays (H, W, 3 origins and directions): for cameras with distortion."""
     vertices, faces, uv, texture, vcolor = _as_arrays(mesh)
-    hit = render_ids(scene_of(vertices, faces), cam, width, height)
+    hit = cast(scene_of(vertices, faces), origins, directions)
     mask = hit["face"] >= 0
     f = hit["face"][mask]
     b = hit["bary"][mask]
-    image = np.zeros((height, width, 3), np.float32)
+    image = np.zeros((*mask.shape, 3), np.float32)
     if uv is not None and not vertex_colors:
         p = np.einsum("nk,nkc->nc", b, uv[f])
         th, tw = texture.shape[:2]

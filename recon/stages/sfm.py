@@ -108,7 +108,7 @@ class SfmConfig:
 @register
 class Sfm(Stage):
     name = "sfm"
-    version = 9
+    version = 10
     Config = SfmConfig
     requires = (PreparedPhotos, FeatureDatabase, MatchDatabase)
     produces = SparseModel

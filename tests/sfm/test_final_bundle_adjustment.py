@@ -102,3 +102,33 @@ def test_principal_points_are_refined_unless_that_leaves_the_exif_focal_length()
     without_exif = final_bundle_adjustment(pycolmap.Reconstruction(model), cfg,
                                            {1: np.array([1.01 * FOCAL, WIDTH / 2, HEIGHT / 2, 0.0])})
     assert without_exif.cameras[1].params[1:3] == pytest.approx([350.0, 260.0], abs=1.0)
+
+
+def test_one_observation_far_off_does_not_decide_a_refinement():
+    """The simpler model places one observation of 12,000 some 9,000 px off (as a point seen side-on,
+    which only a refined k1's fold brings into the photo): capped at the mapper's 4 px, the fuller model
+    gains too little to be kept; the plain mean would read 1.1 px against 0.37 and keep it."""
+    from recon.sparse.mapping import _explains_better, capped_mean_error
+
+    fuller = _model(k1=0.0, spread=0.35)
+    simpler = pycolmap.Reconstruction(fuller)
+    observation = simpler.image(1).points2D[0]
+    observation.xy = observation.xy + np.array([9000.0, 0.0])
+    before, after = capped_mean_error(simpler), capped_mean_error(fuller)
+    assert after == pytest.approx(NOISE_PX * np.sqrt(np.pi / 2), rel=0.05)  # mean of a 2-D Gaussian's radius
+    assert 0 < before - after <= 4.0 / fuller.compute_num_observations()
+    assert not _explains_better(simpler, fuller, "distortion")
+
+
+def test_observations_left_far_off_are_dropped_from_the_model_kept():
+    from recon.sparse.mapping import outlier_px
+
+    model = _model(k1=0.0, spread=0.35)
+    observation = model.image(3).points2D[5]
+    observation.xy = observation.xy + np.array([0.0, 700.0])
+    count = model.compute_num_observations()
+    rec = _final(model, 0.0)
+    assert rec.compute_num_observations() == count - 1
+    assert not rec.image(3).points2D[5].has_point3D()
+    rec.update_point_3d_errors()
+    assert max(rec.point3D(p).error for p in rec.point3D_ids()) < outlier_px()

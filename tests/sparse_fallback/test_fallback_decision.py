@@ -60,9 +60,6 @@ class _Model:
     def num_reg_images(self):
         return self.registered
 
-    def compute_mean_reprojection_error(self):
-        return self.error
-
     def num_points3D(self):
         return 1000 * self.registered
 
@@ -80,6 +77,7 @@ def fake_mappers(monkeypatch, tmp_path):
         return made[mapper]
 
     monkeypatch.setattr(mapping, "_map", fake_map)
+    monkeypatch.setattr(mapping, "capped_mean_error", lambda model: model.error)
     monkeypatch.setattr(mapping, "image_ids", lambda db: {f"view_{k:03d}.jpg": k + 1 for k in range(29)})
     monkeypatch.setattr(mapping, "read_only", lambda database: contextlib.nullcontext())
     return made, calls

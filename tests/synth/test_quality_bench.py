@@ -38,6 +38,7 @@ def test_bench_runs_a_tiny_scene_end_to_end(tmp_path, capsys):
     assert "error" not in row, row.get("error")
     assert row["registered"] >= 8 and 0.0 < row["fused"]["F@0.005"] <= 1.0 and 0.0 < row["coverage"] <= 1.0
     assert row["psnr"] > 10 and {"mvs", "texture"} <= set(row["seconds"])
+    assert row["placed"] >= 1 and row["psnr_placed"] > 10
     assert 0.0 <= row["pose_auc@5"] <= 1.0 and 0.0 < row["depth"]["completeness@0.002"] <= 1.0
     assert 0.0 < row["seen_twice"] <= 1.0
     assert "turntable_black" in capsys.readouterr().out
@@ -88,7 +89,8 @@ def test_compare_prints_both_runs_and_counts_moves_beyond_the_seed(tmp_path, cap
     assert "0.7000 -> 0.7250" in next(line for line in out.splitlines() if line.startswith("mean (2)"))  # mesh
     # b's fused F moved by .0005: a move, but not one beyond what the seed alone does; a's by .05 is
     assert "up/down at all: fusedF.2 1/1, meshF.2 1/0" in out
-    assert "by more than the seed does: fusedF.2 1/0, meshF.2 1/0, texPSNR 0/0, tex-vc 0/0, cover 0/1" in out
+    assert ("by more than the seed does: fusedF.2 1/0, meshF.2 1/0, texPSNR 0/0, tex-vc 0/0, cover 0/1, "
+            "texPSNRpl 0/0, tex-vc.pl 0/0") in out
 
 
 def test_compare_refuses_a_file_that_is_not_a_bench_result(tmp_path, capsys):
@@ -96,3 +98,29 @@ def test_compare_refuses_a_file_that_is_not_a_bench_result(tmp_path, capsys):
     other.write_text(json.dumps({"points": 3}))
     assert quality_bench.main(["--compare", str(other), str(other)]) == 2
     assert "other.json holds no zoo results" in capsys.readouterr().err
+
+
+def test_placed_views_are_rendered_through_the_models_camera_with_its_distortion():
+    """The rays of a held-out photo placed in the model: a pinhole camera's are those of its K, R, t; with
+    distortion, each ray lands back on its pixel's centre through the camera, not where K alone puts it."""
+    from types import SimpleNamespace
+
+    import numpy as np
+    import pycolmap
+
+    from recon.surface.raycast import pixel_rays
+
+    R = pycolmap.Rotation3d(np.array([0.1, -0.2, 0.05, 0.97]) / np.linalg.norm([0.1, -0.2, 0.05, 0.97]))
+    pose = pycolmap.Rigid3d(R, np.array([0.3, -0.1, 2.0]))
+    pinhole = pycolmap.Camera(model="SIMPLE_RADIAL", width=64, height=48, params=[50.0, 32.0, 24.0, 0.0])
+    origins, directions = quality_bench._photo_rays(pinhole, pose, 64, 48)
+    cam = SimpleNamespace(K=pinhole.calibration_matrix(), R=pose.rotation.matrix(), t=pose.translation)
+    o, d = pixel_rays(cam, 64, 48)
+    assert np.allclose(origins, o) and np.allclose(directions, d)
+    distorted = pycolmap.Camera(model="SIMPLE_RADIAL", width=64, height=48, params=[50.0, 32.0, 24.0, -0.2])
+    _, directions = quality_bench._photo_rays(distorted, pose, 64, 48)
+    in_camera = directions.reshape(-1, 3) @ pose.rotation.matrix().T
+    back = distorted.img_from_cam(in_camera).reshape(48, 64, 2)
+    u, v = np.meshgrid(np.arange(64) + 0.5, np.arange(48) + 0.5)
+    assert np.allclose(back, np.stack([u, v], -1), atol=1e-6)
+    assert np.abs(directions - d).max() > 0.01  # the corners' rays bend away from the pinhole's
