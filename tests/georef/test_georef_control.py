@@ -124,7 +124,10 @@ def test_local_enu_gcps_put_the_model_in_their_frame(small_scene, sparse_workspa
     assert result["origin"] is None and result["scale_source"] == "GCP"
     found = _centres(model)
     error = [np.linalg.norm(found[n] - true_centres[n]) for n in found]
-    assert np.median(error) < 0.1
+    # four GCPs marked with 0.3 px of noise leave the cameras 0.08-0.10 m (median) from the truth, by the
+    # noise's seed and the model's last digits (sparse models before and after session 39's final-BA
+    # change); a wrong frame leaves them metres off
+    assert np.median(error) < 0.15
     assert {p["name"] for p in result["gcp"]["points"]} == set(enu)
 
 
