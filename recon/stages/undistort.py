@@ -12,8 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from recon.mvs import cubemap
 from recon.options import opt
 from recon.products import DenseScene, PreparedPhotos, SparseModel
@@ -30,7 +28,7 @@ class UndistortConfig:
 @register
 class Undistort(Stage):
     name = "undistort"
-    version = 3
+    version = 2
     Config = UndistortConfig
     requires = (PreparedPhotos, SparseModel)
     produces = DenseScene
@@ -50,50 +48,13 @@ class Undistort(Stage):
         if cubemap.is_spherical(model):  # 360-degree photos: six pinhole faces each (recon.mvs.cubemap)
             return cubemap.write_cubemap_workspace(model, ctx.input(PreparedPhotos).geometric, dense.folder,
                                                    cfg.max_image_size)
-        photos = ctx.input(PreparedPhotos).geometric
-        pycolmap.undistort_images(str(dense.folder), str(model), str(photos), undistort_options=opts)
-        sparse = pycolmap.Reconstruction(str(model))
+        pycolmap.undistort_images(str(dense.folder), str(model),
+                                  str(ctx.input(PreparedPhotos).geometric), undistort_options=opts)
         rec = pycolmap.Reconstruction(str(dense.model))
-        as_taken = _photos_as_taken(sparse, rec, photos, dense.images, cfg.max_image_size)
-        if as_taken:
-            rec.write(str(dense.model))
-            ctx.log.info("undistort: %d photos without distortion used as they are", as_taken)
-        masked = _undistort_masks(ctx.input(PreparedPhotos).masks, sparse, rec, dense.masks)
+        masked = _undistort_masks(ctx.input(PreparedPhotos).masks, pycolmap.Reconstruction(str(model)), rec,
+                                  dense.masks)
         cam = next(iter(rec.cameras.values()))
-        return {"images": rec.num_reg_images(), "size": f"{cam.width}x{cam.height}", "masked": masked,
-                "as_taken": as_taken}
-
-
-def _photos_as_taken(sparse, dense, photos: Path, images: Path, max_image_size: int) -> int:
-    """The photos of cameras without distortion put back as they are into the undistorted workspace
-    (``dense``, the model COLMAP's undistorter wrote, and its ``images`` folder): their files copied
-    from ``photos``, their cameras the model's own as PINHOLE. Returns how many.
-
-    COLMAP's undistorter resamples such photos all the same: it crops them to the whole pixels of the
-    frame it computes (640x480 to 639x479, the principal point moved half a pixel), so each pixel becomes
-    the mean of its neighbours, and it encodes JPEGs again. The zoo's masked_object photos lost 20 % of
-    their gradient energy that way, and textures baked from the photos as taken gained 1.3 dB of
-    held-out PSNR on classic (docs/DECISIONS.md). Photos to be shrunk (``max_image_size``) are left
-    to the undistorter."""
-    import shutil
-
-    import pycolmap
-
-    count = 0
-    for camera_id, camera in sparse.cameras.items():
-        extra = camera.params[list(camera.extra_params_idxs())]
-        if not camera.is_perspective_pinhole() or np.any(extra != 0) \
-                or (max_image_size and max(camera.width, camera.height) > max_image_size):
-            continue
-        fx, fy = camera.params[list(camera.focal_length_idxs())][[0, -1]]
-        cx, cy = camera.params[list(camera.principal_point_idxs())]
-        dense.cameras[camera_id] = pycolmap.Camera(model="PINHOLE", width=camera.width, height=camera.height,
-                                                   params=[fx, fy, cx, cy], camera_id=camera_id)
-        for image in dense.images.values():
-            if image.camera_id == camera_id:
-                shutil.copyfile(photos / image.name, images / image.name)
-                count += 1
-    return count
+        return {"images": rec.num_reg_images(), "size": f"{cam.width}x{cam.height}", "masked": masked}
 
 
 def _undistort_masks(masks: Path, sparse, dense, out: Path) -> int:
