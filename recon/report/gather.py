@@ -12,6 +12,7 @@ import numpy as np
 
 from recon.geometry.transforms import up_direction
 from recon.sparse.database import private_copy
+from recon.sparse.residuals import observation_errors
 
 log = logging.getLogger(__name__)
 
@@ -147,15 +148,8 @@ def read_model(path: Path) -> tuple[Model, dict[str, tuple[int, float]]]:
         rotations.append(R)
         centers.append(-R.T @ t)
         intrinsics.append([K[0, 0], K[1, 1], K[0, 2], K[1, 2], cam.width, cam.height])
-        observed = [(p.xy, xyz[p.point3D_id]) for p in im.points2D if p.has_point3D()]
-        if observed:
-            xy = np.array([o[0] for o in observed])
-            X = np.array([o[1] for o in observed]) @ R.T + t
-            projected = np.asarray(cam.img_from_cam(X))
-            errors = np.linalg.norm(projected - xy, axis=1)
-            per_image[im.name] = (len(observed), float(errors.mean()))
-        else:
-            per_image[im.name] = (0, float("nan"))
+        errors = observation_errors(rec, im)
+        per_image[im.name] = (len(errors), float(errors.mean()) if len(errors) else float("nan"))
     rotations_a = np.array(rotations).reshape(-1, 3, 3)
     centers_a = np.array(centers).reshape(-1, 3)
     model = Model(

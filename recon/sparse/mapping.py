@@ -17,6 +17,7 @@ from recon.sparse.database import (
     read_only,
     stored_camera_params,
 )
+from recon.sparse.residuals import observation_errors
 
 log = logging.getLogger(__name__)
 
@@ -343,15 +344,10 @@ def capped_mean_error(rec) -> float:
     cap = outlier_px()
     total, count = 0.0, 0
     for image in rec.images.values():
-        seen = [p for p in image.points2D if p.has_point3D()]
-        if not image.has_pose or not seen:
-            continue
-        pose = image.cam_from_world()
-        world = np.array([rec.point3D(p.point3D_id).xyz for p in seen])
-        projected = rec.camera(image.camera_id).img_from_cam(world @ pose.rotation.matrix().T + pose.translation)
-        errors = np.linalg.norm(projected - np.array([p.xy for p in seen]), axis=1)
-        total += float(np.minimum(np.nan_to_num(errors, nan=cap), cap).sum())
-        count += len(seen)
+        if image.has_pose:
+            errors = observation_errors(rec, image)
+            total += float(np.minimum(np.nan_to_num(errors, nan=cap), cap).sum())
+            count += len(errors)
     return total / count if count else 0.0
 
 
