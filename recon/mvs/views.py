@@ -110,6 +110,12 @@ def view_camera(image: pycolmap.Image, camera: pycolmap.Camera) -> ViewCamera:
     """The pinhole camera of a registered image with an undistorted (PINHOLE/SIMPLE_PINHOLE) camera."""
     if camera.model_name not in ("PINHOLE", "SIMPLE_PINHOLE"):
         raise ValueError(f"{image.name}: dense stereo needs undistorted pinhole cameras, got {camera.model_name}")
+    return pinhole_view(image, camera)
+
+
+def pinhole_view(image: pycolmap.Image, camera: pycolmap.Camera) -> ViewCamera:
+    """The pinhole camera of a registered image: its camera's focal lengths and principal point (any
+    distortion parameters left out)."""
     pose = image.cam_from_world()
     return ViewCamera(image.name, np.asarray(camera.calibration_matrix(), dtype=np.float64),
                       np.asarray(pose.rotation.matrix(), dtype=np.float64),

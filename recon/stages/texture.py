@@ -1,5 +1,7 @@
-"""texture: view selection, UV atlas, baking from the undistorted photos, seam blending; exports
-textured.glb (embedded texture), textured.obj + .mtl + .png, and the vertex-coloured mesh.ply."""
+"""texture: view selection, UV atlas, baking from the photos (as taken where their camera has no
+distortion, else resampled into the undistorted view: :mod:`recon.surface.texture.sources`), seam
+blending; exports textured.glb (embedded texture), textured.obj + .mtl + .png, and the vertex-coloured
+mesh.ply."""
 
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ import numpy as np
 
 from recon.files import read_json
 from recon.options import opt
-from recon.products import DenseScene, SparseModel, SurfaceMesh, TexturedModel
+from recon.products import DenseScene, PreparedPhotos, SparseModel, SurfaceMesh, TexturedModel
 from recon.stage import Stage, StageContext, StageError, register
 from recon.surface.options import TextureOptions
 
@@ -33,18 +35,18 @@ def write_exports(textured, out, georeference: dict | None = None) -> dict:
 @register
 class Texture(Stage):
     name = "texture"
-    version = 6
+    version = 7
     Config = TextureConfig
-    requires = (SparseModel, DenseScene, SurfaceMesh)
+    requires = (PreparedPhotos, SparseModel, DenseScene, SurfaceMesh)
     produces = TexturedModel
     summary = "texture atlas from the photos with seam blending: textured.glb, textured.obj"
 
     def run(self, ctx: StageContext, cfg: TextureConfig) -> dict:
-        import cv2
         import trimesh
 
         from recon.surface.cleanup import decimate
         from recon.surface.texture import texture_mesh
+        from recon.surface.texture.sources import texture_sources
 
         dense = ctx.input(DenseScene)
         mesh = trimesh.load(ctx.input(SurfaceMesh).path, process=False)
@@ -53,10 +55,12 @@ class Texture(Stage):
         views = dense.views()
         if not views:
             raise StageError("texture: the undistorted model has no registered photo")
-        images = [cv2.cvtColor(cv2.imread(str(dense.images / v.name)), cv2.COLOR_BGR2RGB) for v in views]
-        masks = [dense.mask(v.name) for v in views] if dense.masks.is_dir() else None
-        textured = texture_mesh(mesh, images, views, cfg, masks)
+        photos = ctx.input(PreparedPhotos)
+        sources = texture_sources(views, dense.images, dense.masks, ctx.input(SparseModel).model(),
+                                  photos.geometric, photos.masks)
+        textured = texture_mesh(mesh, sources.images, sources.cameras, cfg, sources.masks)
         sizes = write_exports(textured, ctx.out, read_json(ctx.input(SparseModel).georeference))
         seen = float(np.mean(textured.face_view >= 0))
         return {"faces": len(textured.faces), "atlas": f"{textured.texture.shape[1]}x{textured.texture.shape[0]}",
-                "faces_seen": round(seen, 3), "glb_mb": round(sizes["textured.glb"] / 1e6, 2)}
+                "faces_seen": round(seen, 3), "photos_as_taken": sources.as_taken,
+                "photos_resampled": sources.resampled, "glb_mb": round(sizes["textured.glb"] / 1e6, 2)}

@@ -9,6 +9,7 @@ It reads preprocess's ``images_geometric``: the photos with only the geometric o
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,7 +29,7 @@ class UndistortConfig:
 @register
 class Undistort(Stage):
     name = "undistort"
-    version = 2
+    version = 4  # 3 was photos without distortion put in as taken, not kept
     Config = UndistortConfig
     requires = (PreparedPhotos, SparseModel)
     produces = DenseScene
@@ -37,10 +38,6 @@ class Undistort(Stage):
     def run(self, ctx: StageContext, cfg: UndistortConfig) -> dict:
         import pycolmap
 
-        opts = pycolmap.UndistortCameraOptions()
-        opts.blank_pixels = cfg.blank_pixels
-        if cfg.max_image_size:
-            opts.max_image_size = cfg.max_image_size
         dense = ctx.output
         model = ctx.input(SparseModel).model()
         if warning := ctx.input(SparseModel).report().get("warning"):  # repeated before the long dense work
@@ -48,13 +45,31 @@ class Undistort(Stage):
         if cubemap.is_spherical(model):  # 360-degree photos: six pinhole faces each (recon.mvs.cubemap)
             return cubemap.write_cubemap_workspace(model, ctx.input(PreparedPhotos).geometric, dense.folder,
                                                    cfg.max_image_size)
-        pycolmap.undistort_images(str(dense.folder), str(model),
-                                  str(ctx.input(PreparedPhotos).geometric), undistort_options=opts)
+        undistort_photos(model, ctx.input(PreparedPhotos).geometric, dense.folder, cfg)
         rec = pycolmap.Reconstruction(str(dense.model))
         masked = _undistort_masks(ctx.input(PreparedPhotos).masks, pycolmap.Reconstruction(str(model)), rec,
                                   dense.masks)
         cam = next(iter(rec.cameras.values()))
         return {"images": rec.num_reg_images(), "size": f"{cam.width}x{cam.height}", "masked": masked}
+
+
+def undistort_photos(model: Path, photos: Path, folder: Path, cfg: UndistortConfig) -> None:
+    """COLMAP's undistorted workspace in ``folder`` of the sparse ``model``'s ``photos``.
+
+    COLMAP copies a photo as taken, and keeps its camera model (SIMPLE_RADIAL with k1 = 0, say), when the
+    camera has no distortion and no image size limit is given; dense stereo needs pinhole cameras, so a
+    limit is always given and every camera comes out PINHOLE. With ``max_image_size`` 0 it is one no
+    undistorted frame reaches (COLMAP's frames are at most ``max_scale`` times the photo). A photo
+    without distortion is then resampled half a pixel over (the frame is cropped to whole pixels):
+    PatchMatch was measured to gain from that; the texture reads the photo as taken
+    (:mod:`recon.surface.texture.sources`)."""
+    import pycolmap
+
+    opts = pycolmap.UndistortCameraOptions()
+    opts.blank_pixels = cfg.blank_pixels
+    cameras = pycolmap.Reconstruction(str(model)).cameras.values()
+    opts.max_image_size = cfg.max_image_size or math.ceil(opts.max_scale * max(max(c.width, c.height) for c in cameras))
+    pycolmap.undistort_images(str(folder), str(model), str(photos), undistort_options=opts)
 
 
 def _undistort_masks(masks: Path, sparse, dense, out: Path) -> int:
