@@ -61,10 +61,9 @@ def resample_mask(mask: np.ndarray, source, target) -> np.ndarray:
     """``mask`` of an image of the pycolmap camera ``source`` as seen by the camera ``target`` (same
     centre and orientation: an undistorted or resized view), nearest neighbour; pixels that fall
     outside the source image are masked out."""
-    u, v = np.meshgrid(np.arange(target.width) + 0.5, np.arange(target.height) + 0.5)
-    rays = target.cam_from_img(np.stack([u.ravel(), v.ravel()], axis=1))
-    pixels = source.img_from_cam(np.column_stack([rays, np.ones(len(rays))]), check_cheirality=False)
-    return inside_mask(mask, pixels).reshape(target.height, target.width)
+    from recon.imaging.pixels import seen_pixels
+
+    return inside_mask(mask, seen_pixels(source, target)).reshape(target.height, target.width)
 
 
 def mask_at(mask: np.ndarray, width: int, height: int) -> np.ndarray:

@@ -4,7 +4,8 @@ Images at the API surface are uint8 or uint16, HxW (gray) or HxWx3 (RGB). Kernel
 in [0, 1]; :func:`to_float` and :func:`from_float` are the one conversion in each direction.
 :func:`sample_bilinear` is the bilinear lookup at continuous pixel coordinates that array code shares
 (texturing, the depth maps' silhouette check, evaluation; numba kernels inline their own);
-:func:`sample_lanczos` the sharper one that copies photo colours into a texture.
+:func:`sample_lanczos` the sharper one that copies photo colours into a texture. :func:`seen_pixels`
+maps one camera's pixels into another's at the same centre (an undistorted or resized view).
 """
 
 from __future__ import annotations
@@ -106,3 +107,13 @@ def sample_lanczos(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarra
     out = cv2.remap(np.asarray(image, np.float32), maps[0].reshape(rows, -1), maps[1].reshape(rows, -1),
                     cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE)
     return out.reshape((rows * _REMAP_ROW,) + image.shape[2:])[:n]
+
+
+def seen_pixels(source, target) -> np.ndarray:
+    """Pixels (N, 2; COLMAP's convention, centres at +0.5) of the pycolmap camera ``source`` seen by the
+    pixel centres of the camera ``target``, row by row: both at one centre and orientation (an
+    undistorted or resized view of the same photo)."""
+    u, v = np.meshgrid(np.arange(target.width) + 0.5, np.arange(target.height) + 0.5)
+    rays = target.cam_from_img(np.stack([u.ravel(), v.ravel()], axis=1))
+    return np.asarray(source.img_from_cam(np.column_stack([rays, np.ones(len(rays))]), check_cheirality=False),
+                      np.float64)

@@ -29,6 +29,7 @@ import numpy as np
 import pycolmap
 
 from recon.imaging.masks import load_mask
+from recon.imaging.pixels import sample_lanczos, seen_pixels
 from recon.mvs.views import ViewCamera, pinhole_view
 
 _PINHOLE_TOL = 1e-3  # pixels: how far from a pinhole's projection a camera may map and count as one
@@ -57,16 +58,16 @@ def texture_sources(views: list[ViewCamera], undistorted: Path, undistorted_mask
         if camera is None or abs(view.K[0, 0] / camera.calibration_matrix()[0, 0] - 1.0) >= _SCALE_TOL:
             cameras.append(view)
             images.append(_rgb(undistorted / view.name))
-            masks.append(load_mask(undistorted_masks, view.name) if undistorted_masks.is_dir() else None)
+            masks.append(load_mask(undistorted_masks, view.name))
         elif _projects_as_pinhole(camera):
             cameras.append(pinhole_view(image, camera))
             images.append(_rgb(photos / view.name))
-            masks.append(load_mask(photo_masks, view.name) if photo_masks.is_dir() else None)
+            masks.append(load_mask(photo_masks, view.name))
             as_taken += 1
         else:
             cameras.append(view)
             images.append(_resampled(_rgb(photos / view.name), camera, view))
-            masks.append(load_mask(undistorted_masks, view.name) if undistorted_masks.is_dir() else None)
+            masks.append(load_mask(undistorted_masks, view.name))
             resampled += 1
     return TextureSources(cameras, images, masks if any(m is not None for m in masks) else None, as_taken,
                           resampled)
@@ -87,9 +88,10 @@ def _projects_as_pinhole(camera: pycolmap.Camera) -> bool:
 
 
 def _resampled(photo: np.ndarray, camera: pycolmap.Camera, view: ViewCamera) -> np.ndarray:
-    """``photo``, taken by ``camera``, resampled with Lanczos into the pinhole ``view``."""
-    u, v = np.meshgrid(np.arange(view.width) + 0.5, np.arange(view.height) + 0.5)  # pixel centres (COLMAP)
-    rays = np.stack([u.ravel(), v.ravel(), np.ones(u.size)], axis=1) @ np.linalg.inv(view.K).T
-    source = np.asarray(camera.img_from_cam(rays), np.float64) - 0.5  # OpenCV's pixel centres are whole
-    maps = source.reshape(view.height, view.width, 2).astype(np.float32)
-    return cv2.remap(photo, maps[..., 0], maps[..., 1], cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REPLICATE)
+    """``photo`` (uint8 RGB), taken by ``camera``, resampled with Lanczos into the pinhole ``view``."""
+    K = view.K
+    pinhole = pycolmap.Camera(model="PINHOLE", width=view.width, height=view.height,
+                              params=[K[0, 0], K[1, 1], K[0, 2], K[1, 2]])
+    x, y = seen_pixels(camera, pinhole).T
+    rgb = sample_lanczos(photo, x, y).reshape(view.height, view.width, 3)
+    return np.clip(rgb, 0, 255).round().astype(np.uint8)
