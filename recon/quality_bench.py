@@ -88,7 +88,7 @@ def holdout_texture(ws: Path, scene) -> dict:
     import trimesh
     from PIL import Image
 
-    from recon.eval.texture import masked_psnr, render
+    from recon.eval.texture import masked_psnr, render_rays
     from recon.surface.export import read_glb
 
     meshes = {"texture": read_glb(ws / "textured.glb"), "vertex_colours": trimesh.load(ws / "mesh.ply", process=False)}
@@ -101,8 +101,9 @@ def holdout_texture(ws: Path, scene) -> dict:
     for name, cam in scene.cameras(holdout=True).items():
         truth = np.asarray(Image.open(scene.holdout_images_dir / name).convert("RGB"))
         surface = holdout_surface(scene, name, scene.depth(name))
+        rays = _true_rays(cam)
         for key, mesh in meshes.items():
-            image, mask = render(mesh, cam, cam.width, cam.height)
+            image, mask = render_rays(mesh, *rays)
             if (mask & surface).any():  # no PSNR where the mesh shows nothing of the surface
                 psnr[key].append(masked_psnr(image, truth, mask & surface))
             if key == "texture":
@@ -145,6 +146,15 @@ def placed_holdout(ws: Path, scene, meshes: dict) -> dict:
     return out
 
 
+def _true_rays(cam) -> tuple[np.ndarray, np.ndarray]:
+    """Origins and directions (height, width, 3; world frame) of the rays through the pixel centres of the
+    ground-truth camera ``cam`` (its lens's distortion undone)."""
+    u, v = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
+    directions = cam.rays(np.column_stack([u.ravel(), v.ravel()])) @ cam.R
+    return (np.broadcast_to(cam.center, directions.shape).reshape(cam.height, cam.width, 3),
+            directions.reshape(cam.height, cam.width, 3))
+
+
 def _photo_rays(camera, cam_from_world, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     """Origins and directions (height, width, 3; world frame) of the rays through the pixel centres of a
     ``width`` x ``height`` photo taken by the COLMAP ``camera`` (its distortion undone) at ``cam_from_world``."""
@@ -174,13 +184,12 @@ def holdout_seen_twice(scene) -> float:
     does not bound coverage: Poisson closes the surface across what one photo alone sees, and so may cover
     more. Where a scene's coverage lies above it, the excess stands on surface no two photos measured."""
     from recon.eval.surface import views_seeing
-    from recon.geometry.transforms import backproject
 
     seen = total = 0
     for name, cam in scene.cameras(holdout=True).items():
         depth = scene.depth(name)
         rows, cols = np.nonzero(holdout_surface(scene, name, depth))
-        points = backproject(cam.K, cam.R, cam.t, np.column_stack([cols + 0.5, rows + 0.5]), depth[rows, cols])
+        points = cam.backproject(np.column_stack([cols + 0.5, rows + 0.5]), depth[rows, cols])
         seen += int(np.count_nonzero(views_seeing(scene, points) >= 2))
         total += len(points)
     return seen / max(total, 1)

@@ -11,7 +11,8 @@ same thresholds as the surface metrics (fractions of the scene's extent):
 
 - accuracy@tau: share of kept pixels within tau of the true surface;
 - completeness@tau: share of the view's true-surface pixels (true depth > 0, resampled to the
-  depth map's size) that hold a depth within tau of the surface;
+  depth map's size; through the true lens where it has distortion, which the depth map's undistorted
+  view has not) that hold a depth within tau of the surface;
 - background: share of kept pixels where the truth has no surface (sky, black background): depths
   invented from nothing.
 
@@ -20,23 +21,27 @@ In a masked capture (the zoo's ``masked_object``) the view's surface is the mask
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from recon.eval.groundtruth import Camera
 from recon.eval.surface import THRESHOLDS, ground_truth_distance
 from recon.geometry.transforms import Similarity, backproject
 from recon.synth.dataset import SceneInfo
 
 
 def depth_map_metrics(depth: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray, truth: np.ndarray,
-                      to_gt: Similarity, scene: SceneInfo, thresholds=THRESHOLDS, stride: int = 1) -> dict:
+                      to_gt: Similarity, scene: SceneInfo, thresholds=THRESHOLDS, stride: int = 1,
+                      truth_camera: Camera | None = None) -> dict:
     """Figures (module doc; shares in [0, 1]) of one depth map with its camera (K at the map's size,
     pixel centres at +0.5, world-to-camera R, t in the model's frame) against the view's true depth
-    map ``truth`` (any size), over every ``stride``-th pixel of every ``stride``-th row."""
+    map ``truth`` (any size; taken by ``truth_camera`` where that has lens distortion), over every
+    ``stride``-th pixel of every ``stride``-th row."""
     height, width = depth.shape
-    surface = cv2.resize(truth, (width, height), interpolation=cv2.INTER_NEAREST) > 0
+    surface = _true_surface(truth, K, width, height, truth_camera)
     grid = np.zeros_like(surface)
     grid[::stride, ::stride] = True
     surface &= grid
@@ -52,6 +57,23 @@ def depth_map_metrics(depth: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.nda
     return out
 
 
+def _true_surface(truth: np.ndarray, K: np.ndarray, width: int, height: int, truth_camera: Camera | None) -> np.ndarray:
+    """Bool mask (height, width) of the pixels of a pinhole depth map with intrinsics ``K`` whose true depth
+    (``truth``) is > 0: ``truth`` resized, or, taken through a lens with distortion, looked up where the
+    pixel's ray meets the true photo."""
+    if truth_camera is None or not truth_camera.distorted:
+        return cv2.resize(truth, (width, height), interpolation=cv2.INTER_NEAREST) > 0
+    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    rays = backproject(K, np.eye(3), np.zeros(3), np.column_stack([u.ravel(), v.ravel()]), np.ones(u.size))
+    at_origin = dataclasses.replace(truth_camera, R=np.eye(3), t=np.zeros(3))
+    uv = np.floor(at_origin.project(rays)[0] * [truth.shape[1] / truth_camera.width,
+                                                truth.shape[0] / truth_camera.height]).astype(np.int64)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < truth.shape[1]) & (uv[:, 1] >= 0) & (uv[:, 1] < truth.shape[0])
+    surface = np.zeros(u.size, bool)
+    surface[inside] = truth[uv[inside, 1], uv[inside, 0]] > 0
+    return surface.reshape(height, width)
+
+
 def workspace_depth_metrics(workspace: str | Path, scene: SceneInfo, thresholds=THRESHOLDS,
                             stride: int = 1) -> dict[str, dict]:
     """:func:`depth_map_metrics` of every final (geometric) depth map of a workspace, keyed by the view's
@@ -65,6 +87,7 @@ def workspace_depth_metrics(workspace: str | Path, scene: SceneInfo, thresholds=
     published = Published(workspace)
     to_gt = model_to_ground_truth(Path(workspace), scene.root)
     by_base = {Path(n).name: n for n in scene.image_names}
+    true_cameras = scene.cameras()
     out = {}
     for view in model_views(published.dense / SparseModel.MODELS):
         path = published.depth_maps / f"{view.name}.geometric.bin"
@@ -76,5 +99,6 @@ def workspace_depth_metrics(workspace: str | Path, scene: SceneInfo, thresholds=
         truth = scene.depth(name)
         if scene.masked:  # a masked capture's surface is its object: the rest is background to it
             truth = np.where(load_mask(scene.masks_dir, name, truth.shape), truth, 0)
-        out[name] = depth_map_metrics(depth, cam.K, cam.R, cam.t, truth, to_gt, scene, thresholds, stride)
+        out[name] = depth_map_metrics(depth, cam.K, cam.R, cam.t, truth, to_gt, scene, thresholds, stride,
+                                      true_cameras[name])
     return out

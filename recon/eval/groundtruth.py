@@ -11,7 +11,8 @@ pixel centres at half-integers, y down, z forward), keyed by image file name. Su
 - nerfstudio / instant-ngp ``transforms.json``: per-frame 4x4 camera-to-world matrices in OpenGL
   axes (x right, y up, z backwards); intrinsics ``fl_x fl_y cx cy w h`` (or ``camera_angle_x``)
   global or per frame. Distortion coefficients are ignored.
-- recon synthetic scenes: ``gt/cameras.json`` with per-frame K, R, t, width, height.
+- recon synthetic scenes: ``gt/cameras.json`` with per-frame K, R, t, width, height, and ``radial``
+  (k1, k2) where the lens has distortion.
 
 Middlebury and Strecha intrinsics are taken as published; their principal points are not shifted by
 half a pixel (their docs do not state the pixel-centre convention, and a 0.5 px shift of the
@@ -27,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from recon.geometry.transforms import camera_center, project
+from recon.geometry.transforms import apply_matrix, camera_center, project
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".ppm", ".bmp")
 
@@ -35,13 +36,20 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".ppm", ".bmp")
 @dataclasses.dataclass(frozen=True, eq=False)
 class Camera:
     """A pinhole camera: intrinsics ``K`` (3x3), world-to-camera ``R`` (3x3) and ``t`` (3,), image size
-    in pixels (0 when the source does not say)."""
+    in pixels (0 when the source does not say), and the lens's ``radial`` distortion (k1, k2) as in
+    COLMAP's RADIAL model: a point at normalised radius r is imaged at r (1 + k1 r^2 + k2 r^4). A
+    depth is camera z with or without distortion."""
 
     K: np.ndarray
     R: np.ndarray
     t: np.ndarray
     width: int
     height: int
+    radial: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def distorted(self) -> bool:
+        return any(self.radial)
 
     @property
     def center(self) -> np.ndarray:
@@ -54,18 +62,48 @@ class Camera:
         return self.K @ np.column_stack([self.R, self.t])
 
     def project(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Pixels (N, 2) and depths (N,) of world points (N, 3)."""
-        return project(self.K, self.R, self.t, X)
+        """Pixels (N, 2) and depths (N,) of world points (N, 3), through the lens's distortion."""
+        if not self.distorted:
+            return project(self.K, self.R, self.t, X)
+        X = np.asarray(X, dtype=float).reshape(-1, 3)
+        xc = apply_matrix(self.R, X) + np.asarray(self.t, dtype=float)
+        z = xc[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xy = xc[:, :2] / z[:, None]
+        r2 = np.sum(xy * xy, axis=1, keepdims=True)
+        k1, k2 = self.radial
+        return apply_matrix(self.K[:2, :2], xy * (1 + k1 * r2 + k2 * r2 * r2)) + self.K[:2, 2], z
+
+    def rays(self, uv: np.ndarray) -> np.ndarray:
+        """Camera-frame directions with z = 1 (N, 3) of the rays imaged at pixels ``uv`` (N, 2): the
+        lens's distortion undone by fixed-point iteration (to 1e-6 of a pixel within the frame of the
+        lenses recon renders)."""
+        uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+        distorted = apply_matrix(np.linalg.inv(self.K[:2, :2]), uv - self.K[:2, 2])
+        xy = distorted.copy()
+        if self.distorted:
+            k1, k2 = self.radial
+            for _ in range(50):
+                r2 = np.sum(xy * xy, axis=1, keepdims=True)
+                xy = distorted / (1 + k1 * r2 + k2 * r2 * r2)
+        return np.column_stack([xy, np.ones(len(xy))])
+
+    def backproject(self, uv: np.ndarray, depth: np.ndarray) -> np.ndarray:
+        """World points (N, 3) imaged at pixels ``uv`` (N, 2) at camera depth ``depth`` (N,)."""
+        xc = self.rays(uv) * np.asarray(depth, dtype=float).reshape(-1, 1)
+        return apply_matrix(np.asarray(self.R, dtype=float).T, xc - np.asarray(self.t, dtype=float))
 
     def to_json(self, name: str) -> dict:
-        return {"name": name, "width": int(self.width), "height": int(self.height),
-                "K": np.asarray(self.K).tolist(), "R": np.asarray(self.R).tolist(),
-                "t": np.asarray(self.t).tolist()}
+        out = {"name": name, "width": int(self.width), "height": int(self.height),
+               "K": np.asarray(self.K).tolist(), "R": np.asarray(self.R).tolist(),
+               "t": np.asarray(self.t).tolist()}
+        return out | ({"radial": [float(k) for k in self.radial]} if self.distorted else {})
 
 
-def _camera(K, R, t, width, height) -> Camera:
+def _camera(K, R, t, width, height, radial=(0.0, 0.0)) -> Camera:
     return Camera(np.asarray(K, dtype=float).reshape(3, 3), np.asarray(R, dtype=float).reshape(3, 3),
-                  np.asarray(t, dtype=float).reshape(3), int(width), int(height))
+                  np.asarray(t, dtype=float).reshape(3), int(width), int(height),
+                  (float(radial[0]), float(radial[1])))
 
 
 def load_cameras(path: str | Path) -> dict[str, Camera]:
@@ -183,4 +221,5 @@ def _read_transforms(data: dict) -> dict[str, Camera]:
 
 
 def _read_recon(data: dict) -> dict[str, Camera]:
-    return {f["name"]: _camera(f["K"], f["R"], f["t"], f["width"], f["height"]) for f in data["frames"]}
+    return {f["name"]: _camera(f["K"], f["R"], f["t"], f["width"], f["height"], f.get("radial", (0.0, 0.0)))
+            for f in data["frames"]}

@@ -27,7 +27,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from recon._open3d import open3d
-from recon.geometry.transforms import backproject, project
 from recon.synth.dataset import SceneInfo
 
 log = logging.getLogger(__name__)
@@ -99,7 +98,7 @@ def _observed_points(root: str, spacing: float, _stamp: int) -> np.ndarray:
             chunks.append(range_points(depth, wide[name]))
             continue
         v, u = np.nonzero(depth > 0)
-        chunks.append(backproject(cam.K, cam.R, cam.t, np.column_stack([u + 0.5, v + 0.5]), depth[v, u]))
+        chunks.append(cam.backproject(np.column_stack([u + 0.5, v + 0.5]), depth[v, u]))
     pts = np.concatenate(chunks)
     keys = np.floor(pts / spacing).astype(np.int64)  # voxel grid anchored at the world origin
     keys -= keys.min(0)
@@ -124,7 +123,7 @@ def views_seeing(scene: SceneInfo, points: np.ndarray, tolerance: float = 0.01) 
     for name, cam in scene.cameras().items():
         truth = scene.depth(name)
         height, width = truth.shape
-        uv, z = project(cam.K, cam.R, cam.t, points)
+        uv, z = cam.project(points)
         front = np.flatnonzero(z > 0)
         u = np.floor(uv[front, 0]).astype(np.int64)
         v = np.floor(uv[front, 1]).astype(np.int64)

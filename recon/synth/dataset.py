@@ -46,7 +46,6 @@ import numpy as np
 from PIL import ExifTags, Image, TiffImagePlugin
 
 from recon.eval.groundtruth import Camera, load_cameras, write_cameras
-from recon.geometry.transforms import backproject
 from recon.imaging.masks import save_mask
 from recon.synth.cameras import scene_cameras
 from recon.synth.geotags import GeoTag, add_gps
@@ -276,7 +275,7 @@ def _backproject(depth: np.ndarray, cam: Camera) -> np.ndarray:
     """World points of the valid pixels of a depth map (pixel centres, COLMAP convention)."""
     v, u = np.nonzero(depth > 0)
     z = depth[v, u].astype(np.float64)
-    return backproject(cam.K, cam.R, cam.t, np.column_stack([u + 0.5, v + 0.5]), z)
+    return cam.backproject(np.column_stack([u + 0.5, v + 0.5]), z)
 
 
 def _write_image(path: Path, rgb: np.ndarray, cam: Camera, image_format: str, quality: int = JPEG_QUALITY,

@@ -11,7 +11,8 @@ term: a surface point has the same colour from every view, so photo-consistency 
 to resampling, texture filtering and JPEG. Rays that miss get the background (a uniform sky colour
 by default; any colour, or a colour per world ray direction such as :func:`gradient_sky`) and depth 0.
 
-Ray directions are ``R^T K^-1 (u, v, 1)``, unnormalised, so the hit parameter is the camera z.
+Ray directions are ``R^T K^-1 (u, v, 1)`` (with the lens's distortion undone, :meth:`recon.eval.
+groundtruth.Camera.rays`), unnormalised, so the hit parameter is the camera z.
 """
 
 from __future__ import annotations
@@ -70,12 +71,10 @@ class Renderer:
     def render(self, cam: Camera, supersample: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(RGB uint8 HxWx3, depth float32 HxW (camera z, 0 = sky), normals float32 HxWx3 in the camera
         frame facing it, 0 = sky) of camera ``cam``."""
-        key = (cam.width, cam.height, cam.K.tobytes())
+        key = (cam.width, cam.height, cam.K.tobytes(), cam.radial)
         if key not in self._grids:  # pixel-centre rays depend on the intrinsics only
-            jj, ii = np.meshgrid(np.arange(cam.width, dtype=np.float32) + 0.5,
-                                 np.arange(cam.height, dtype=np.float32) + 0.5)
-            self._grids[key] = _camera_rays(cam.K, np.column_stack([jj.ravel(), ii.ravel()]))
-        return self.render_rays(cam.center, cam.R, cam.width, cam.height, lambda px: _camera_rays(cam.K, px),
+            self._grids[key] = _camera_rays(cam, _pixel_centres(cam))
+        return self.render_rays(cam.center, cam.R, cam.width, cam.height, lambda px: _camera_rays(cam, px),
                                 cam.K[0, 0], supersample, self._grids[key])
 
     def render_rays(self, center: np.ndarray, R: np.ndarray, width: int, height: int,
@@ -123,12 +122,9 @@ class Renderer:
     def part_ids(self, cam: Camera) -> np.ndarray:
         """Index into ``scene.parts`` of the surface each pixel centre sees (HxW int32, -1 = none)."""
         o3d = open3d()
-        jj, ii = np.meshgrid(np.arange(cam.width, dtype=np.float32) + 0.5,
-                             np.arange(cam.height, dtype=np.float32) + 0.5)
         rays = np.empty((cam.width * cam.height, 6), np.float32)
         rays[:, :3] = cam.center
-        rays[:, 3:] = apply_matrix(cam.R.T.astype(np.float32),
-                                   _camera_rays(cam.K, np.column_stack([jj.ravel(), ii.ravel()])))
+        rays[:, 3:] = apply_matrix(cam.R.T.astype(np.float32), _camera_rays(cam, _pixel_centres(cam)))
         prim = self._rays.cast_rays(o3d.core.Tensor(rays))["primitive_ids"].numpy().astype(np.int64)
         hit = prim != o3d.t.geometry.RaycastingScene.INVALID_ID
         ids = np.full(len(prim), -1, np.int32)
@@ -178,10 +174,15 @@ class Renderer:
         return {"idx": idx, "t": t, "part": part, "normals": n, "colour": albedo * shade[:, None].astype(np.float32)}
 
 
-def _camera_rays(K: np.ndarray, px: np.ndarray) -> np.ndarray:
-    """Camera-frame ray directions K^-1 (u, v, 1) (z = 1, so a hit's parameter is its depth)."""
-    Kinv = np.linalg.inv(K)
-    return apply_matrix(Kinv.astype(np.float32), np.column_stack([px, np.ones(len(px), np.float32)]))
+def _pixel_centres(cam: Camera) -> np.ndarray:
+    """The pixel centres (W*H, 2; row after row) of ``cam``'s image."""
+    jj, ii = np.meshgrid(np.arange(cam.width, dtype=np.float32) + 0.5, np.arange(cam.height, dtype=np.float32) + 0.5)
+    return np.column_stack([jj.ravel(), ii.ravel()])
+
+
+def _camera_rays(cam: Camera, px: np.ndarray) -> np.ndarray:
+    """Camera-frame ray directions (z = 1, so a hit's parameter is its depth) of pixel positions ``px``."""
+    return cam.rays(px).astype(np.float32)
 
 
 def _edges(part: np.ndarray, depth: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ procedural), camera layout (recon.synth.layouts), background and capture effects
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import functools
 import hashlib
@@ -57,6 +58,8 @@ SCENES: dict[str, tuple[str, Callable[[np.random.Generator], zs.Setup]]] = {
                       "(masks/<image name>.png); close orbit", zs.masked_object),
     "walkaround": ("phone photos walking around a building: facades seen square-on, about 30 degrees between "
                    "neighbours round the corners, sky, GPS tags with a few metres of noise", zs.walkaround),
+    "wide_lens": ("a wide-angle lens with barrel distortion (k1 -0.08, corners imaged about 23 px inward at "
+                  "640x480): a patio with a wall, planters, a sundial; full orbit", zs.wide_lens),
 }
 
 
@@ -90,7 +93,7 @@ def zoo_digest(name: str) -> str:
     background = setup.background
     digest.update(repr((setup.layout, setup.views, setup.holdout, setup.focal_factor, setup.effects,
                         setup.jpeg_quality, setup.transient_span, sorted(setup.masked), setup.gps_sigma,
-                        getattr(background, "__name__", None) or np.asarray(background).tolist())).encode())
+                        *((setup.radial,) if any(setup.radial) else ()), getattr(background, "__name__", None) or np.asarray(background).tolist())).encode())
     return digest.hexdigest()[:16]
 
 
@@ -105,6 +108,9 @@ def render_zoo(name: str, out_dir: str | Path, views: int | None = None, width: 
     holdout = setup.holdout if holdout is None else holdout
     regular, held = layout_cameras(setup.layout, views, holdout, width, height, setup.focal_factor, seed,
                                    image_format)
+    if any(setup.radial):
+        regular, held = ({name: dataclasses.replace(cam, radial=setup.radial) for name, cam in cams.items()}
+                         for cams in (regular, held))
     start, end = setup.transient_span
     effects = setup.effects
     capture = Capture(background=setup.background,

@@ -42,6 +42,7 @@ class Setup:
     transient_span: tuple[float, float] = (0.0, 0.0)  # share of the path (start, end) where it stands
     masked: frozenset[str] = frozenset()
     gps_sigma: float = 0.0  # > 0: GPS tags in the photos' EXIF, this many metres off per axis (recon.synth.geotags)
+    radial: tuple[float, float] = (0.0, 0.0)  # the lens's distortion (k1, k2; recon.eval.groundtruth.Camera)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -450,3 +451,34 @@ def walkaround(rng: np.random.Generator) -> Setup:
     return Setup(parts, Around((0.0, 0.0), (sx, sy), 6.0, aim=3.5, facing=0.3), views=29, holdout=3,
                  focal_factor=0.75, background=gradient_sky, effects=Effects(exposure_stops=0.2, noise=1.5, vignetting=0.2),
                  jpeg_quality=90, gps_sigma=3.0)
+
+
+def wide_lens(rng: np.random.Generator) -> Setup:
+    """A patio seen through a wide-angle lens with barrel distortion, as action cameras and cheap wide
+    lenses give: k1 = -0.08 at a focal length of 0.65 x the width, so a corner pixel is imaged about
+    23 px nearer the centre at 640x480 and the patio's straight edges bow. The lens is COLMAP's
+    SIMPLE_RADIAL family (k1 alone), which recon fits; the photos reach the texture and dense stages
+    only through their undistortion."""
+    d = 220.0
+    # 1536 texels: the 7 m patio without a repeat
+    flags = tex(tiles(1536, 1536, rng, 96, [(178, 160, 136), (150, 138, 122), (196, 184, 160)], grout=5,
+                      spread=0.1))
+    wall = tex(bricks(512, 256, rng, (32, 16), 2, (120, 128, 140), 0.18))
+    coping = tex(mottled(256, 256, [(200, 196, 188), (160, 156, 150)], rng, 0.25, beta=0.9))
+    terracotta = tex(plaster(256, 128, (190, 104, 70), 9.0, rng, beta=0.9))
+    soil = photo_tex("grass", 256, 256, tint=(0.8, 1.0, 0.8))
+    stone = photo_tex("gravel", 256, 256, tint=(1.05, 1.0, 0.92))
+    slats = tex(planks(256, 256, rng, (120, 90, 70), 40))
+    mural = photo_tex("cat", 384, 256, wrap=False)
+    parts = [ground("ground", 3.5, flags, d),
+             *block("wall_long", rect(3.0, 0.25, 0.0, (0.0, 1.4)), 0.0, 0.9, wall, coping, d),
+             *block("wall_short", rect(0.25, 1.6, 0.0, (-1.375, 0.475)), 0.0, 0.9, wall, coping, d),
+             tiled_quad("mural", [-0.7, 1.27, 0.15], [1.2, 0, 0], [0, 0, 0.7], mural, 320.0),
+             *cylinder("planter_a", (0.9, -0.6), 0.3, 0.5, terracotta, soil, segments=48),
+             *cylinder("planter_b", (1.2, 0.7), 0.22, 0.4, terracotta, soil, segments=48),
+             *cylinder("sundial", (-0.3, -0.2), 0.18, 0.75, stone, coping, segments=48),
+             *sideways("gnomon", np.array([[0.0, 0.75], [0.22, 0.75], [0.0, 0.93]]), (-0.35, -0.2, 0.0), 0.0,
+                       0.02, coping, coping, d),
+             *block("bench", rect(1.2, 0.4, 0.5, (-0.4, -1.3)), 0.0, 0.42, slats, slats, d)]
+    return Setup(parts, Orbit((0.0, 0.0, 0.4), 3.6, 32.0), focal_factor=0.65, background=gradient_sky,
+                 radial=(-0.08, 0.0))

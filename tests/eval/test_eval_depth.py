@@ -1,5 +1,7 @@
 """Depth maps against the true surface: the truth scores perfect, wrong depths and sky depths are caught."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -46,3 +48,26 @@ def test_the_model_frame_is_moved_onto_the_truth(scene):
     R, t = to_model.apply_to_pose(cam.R, cam.t)
     m = depth_map_metrics(scene.depth(name) * 2.0, cam.K, R, t, scene.depth(name), to_model.inverse(), scene)
     assert m["accuracy@0.002"] > 0.999 and m["completeness@0.002"] > 0.999
+
+
+def test_a_distorted_view_is_scored_in_the_depth_maps_undistorted_frame(tmp_path):
+    """A depth map is computed in its view's undistorted (pinhole) frame; the truth of a photo taken through
+    a lens with distortion is on the photo's own pixels. A perfect undistorted depth map scores perfect."""
+    from recon.synth.render import Renderer
+    from recon.synth.scene import assemble
+    from recon.synth.zoo import render_zoo, zoo_setup
+
+    info = render_zoo("wide_lens", tmp_path / "wide", views=3, width=160, height=120, holdout=0)
+    setup = zoo_setup("wide_lens")
+    name = info.image_names[0]
+    cam = info.cameras()[name]
+    assert cam.distorted
+    pinhole = dataclasses.replace(cam, radial=(0.0, 0.0))
+    depth = Renderer(assemble(setup.parts), setup.background).render(pinhole)[1]
+    assert (depth == 0).mean() > 0.05  # sky in view, so the surface's outline counts
+    same = Similarity(1.0, np.eye(3), np.zeros(3))
+    m = depth_map_metrics(depth, cam.K, cam.R, cam.t, info.depth(name), same, info, truth_camera=cam)
+    assert m["accuracy@0.002"] > 0.999 and m["completeness@0.002"] > 0.995 and m["background"] < 0.002
+    # read as if the photo had no distortion, the outline is off by pixels
+    m = depth_map_metrics(depth, cam.K, cam.R, cam.t, info.depth(name), same, info)
+    assert m["background"] > 0.005

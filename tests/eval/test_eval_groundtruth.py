@@ -106,6 +106,27 @@ def test_recon_cameras_json_round_trip(tmp_path):
     write_cameras(tmp_path / "gt" / "cameras.json", cams)
     back = load_cameras(tmp_path)
     check_camera(back["view_000.jpg"])
+    assert back["view_000.jpg"].radial == (0.0, 0.0)
+    write_cameras(tmp_path / "gt" / "cameras.json", {"view_000.jpg": Camera(K, R, -R @ C, 640, 480, (-0.08, 0.01))})
+    assert load_cameras(tmp_path)["view_000.jpg"].radial == (-0.08, 0.01)
+
+
+def test_a_lens_with_distortion_projects_as_opencv_does_and_back():
+    import cv2
+
+    R = R_C2W.T
+    cam = Camera(K, R, -R @ C, 640, 480, (-0.08, 0.01))
+    pixels = np.array([[0.5, 0.5], [639.5, 479.5], [320.0, 240.0], [100.0, 400.0], [600.0, 30.0]])
+    depth = np.array([2.0, 3.0, 4.0, 5.0, 6.0])
+    world = cam.backproject(pixels, depth)
+    uv, z = cam.project(world)
+    np.testing.assert_allclose(uv, pixels, atol=1e-6)
+    np.testing.assert_allclose(z, depth)
+    opencv, _ = cv2.projectPoints(world, cv2.Rodrigues(cam.R)[0], cam.t, K, np.array([-0.08, 0.01, 0.0, 0.0]))
+    np.testing.assert_allclose(opencv[:, 0], pixels, atol=1e-6)
+    # the corner's ray meets a pinhole's image farther out: barrel distortion draws it in
+    straight = K @ cam.rays(pixels[:1])[0]
+    assert np.hypot(*(straight[:2] - K[:2, 2])) > np.hypot(*(pixels[0] - K[:2, 2])) + 10
 
 
 def test_unknown_folder_raises(tmp_path):

@@ -5,6 +5,7 @@ cameras: that ties cameras, depth maps and the surface together for every view, 
 """
 
 
+import cv2
 import numpy as np
 import pytest
 import trimesh
@@ -44,8 +45,11 @@ def _raycast(mesh_path, cam):
     scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, np.float32)),
                         o3d.core.Tensor(np.asarray(mesh.faces, np.uint32)))
     vv, uu = np.mgrid[0 : cam.height, 0 : cam.width]
-    px = np.column_stack([uu.ravel() + 0.5, vv.ravel() + 0.5, np.ones(uu.size)])
-    dirs = px @ np.linalg.inv(cam.K).T @ cam.R  # world directions with camera z = 1
+    px = np.column_stack([uu.ravel() + 0.5, vv.ravel() + 0.5])
+    # the lens's distortion undone by OpenCV (k1, k2, p1 = p2 = 0), not by the camera's own code
+    xy = cv2.undistortPoints(px[:, None], cam.K, np.array([*cam.radial, 0.0, 0.0]), None, None, None,
+                             (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12))[:, 0]
+    dirs = np.column_stack([xy, np.ones(len(xy))]) @ cam.R  # world directions with camera z = 1
     rays = np.column_stack([np.tile(cam.center, (len(dirs), 1)), dirs]).astype(np.float32)
     hit = scene.cast_rays(o3d.core.Tensor(rays))
     normals = hit["primitive_normals"].numpy() @ cam.R.T
@@ -75,6 +79,7 @@ def test_ground_truth_of_every_scene(rendered, name):
             assert im.size == (W, H)
         np.testing.assert_allclose(cam.K, [[setup.focal_factor * W, 0, W / 2], [0, setup.focal_factor * W, H / 2],
                                            [0, 0, 1]])
+        assert cam.radial == setup.radial
         np.testing.assert_allclose(cam.R @ cam.R.T, np.eye(3), atol=1e-9)
         assert np.linalg.det(cam.R) == pytest.approx(1.0)
         depth, normal = info.depth(image_name), info.normal(image_name)
@@ -179,3 +184,19 @@ def test_triangulate_concave_polygon():
     assert len(tris) == 4 and area.sum() == pytest.approx(5.0)
 
 
+
+
+def test_a_lens_with_distortion_bends_the_photo(rendered):
+    """wide_lens's photos are taken through its barrel distortion: a world point is imaged where OpenCV's
+    projection with the lens's coefficients puts it, a corner of the frame well inside the pinhole's."""
+    info = rendered("wide_lens")
+    k1, k2 = zoo_setup("wide_lens").radial
+    assert k1 < 0
+    cam = info.cameras()[info.image_names[0]]
+    depth = info.depth(info.image_names[0])
+    v, u = np.nonzero(depth > 0)
+    world = cam.backproject(np.column_stack([u + 0.5, v + 0.5]), depth[v, u])
+    uv, _ = cv2.projectPoints(world, cv2.Rodrigues(cam.R)[0], cam.t, cam.K, np.array([k1, k2, 0.0, 0.0]))
+    np.testing.assert_allclose(uv[:, 0], np.column_stack([u + 0.5, v + 0.5]), atol=1e-4)
+    pinhole = cam.K @ np.array([*cam.rays(np.array([[0.5, 0.5]]))[0]])
+    assert np.hypot(*(pinhole[:2] - cam.K[:2, 2])) > np.hypot(*(np.array([0.5, 0.5]) - cam.K[:2, 2])) + 4
