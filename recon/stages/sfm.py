@@ -108,7 +108,7 @@ class SfmConfig:
 @register
 class Sfm(Stage):
     name = "sfm"
-    version = 10
+    version = 11
     Config = SfmConfig
     requires = (PreparedPhotos, FeatureDatabase, MatchDatabase)
     produces = SparseModel

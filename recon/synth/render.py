@@ -6,10 +6,12 @@ One ray per pixel centre (open3d's RaycastingScene) gives depth, normals and col
 Texture anti-aliasing is done by trilinear mip-mapping (see textures.py), which filters over the
 sample's footprint on the surface.
 
-Shading is Lambertian with a fixed directional light plus ambient, no shadows and no specular
-term: a surface point has the same colour from every view, so photo-consistency holds exactly up
-to resampling, texture filtering and JPEG. Rays that miss get the background (a uniform sky colour
-by default; any colour, or a colour per world ray direction such as :func:`gradient_sky`) and depth 0.
+Shading is Lambertian with a fixed directional light plus ambient, no shadows: a surface point has
+the same colour from every view, so photo-consistency holds exactly up to resampling, texture
+filtering and JPEG. A glossy part (``Part.gloss`` > 0) adds a white Blinn-Phong highlight, which
+moves over its surface from view to view as a glaze's or a car's does. Rays that miss get the
+background (a uniform sky colour by default; any colour, or a colour per world ray direction such as
+:func:`gradient_sky`) and depth 0.
 
 Ray directions are ``R^T K^-1 (u, v, 1)`` (with the lens's distortion undone, :meth:`recon.eval.
 groundtruth.Camera.rays`), unnormalised, so the hit parameter is the camera z.
@@ -32,6 +34,7 @@ AMBIENT = 0.42
 DIFFUSE = 0.62
 SKY = np.array([0.77, 0.82, 0.89], np.float32)
 DEPTH_JUMP = 0.03  # relative depth change between neighbours that counts as an occlusion edge
+SHININESS = 20.0  # Blinn-Phong exponent of a glossy part's highlight
 
 
 def gradient_sky(dirs: np.ndarray) -> np.ndarray:
@@ -66,6 +69,7 @@ class Renderer:
         self._face_attr = np.concatenate([uv[:, 0], uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0],
                                           nv[:, 0], nv[:, 1] - nv[:, 0], nv[:, 2] - nv[:, 0]], 1).astype(np.float32)
         self._density = np.array([p.texels_per_unit for p in scene.parts])
+        self._gloss = np.array([p.gloss for p in scene.parts], np.float32)
         self._grids: dict[tuple, np.ndarray] = {}
 
     def render(self, cam: Camera, supersample: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -170,8 +174,15 @@ class Renderer:
             sel = np.flatnonzero(part == k)
             level = np.log2(np.maximum(footprint[sel] * self._density[k], 1e-6))
             albedo[sel] = sample(self.scene.parts[k].texture, uv[sel], level)
-        shade = AMBIENT + DIFFUSE * np.maximum(n[:, 0] * LIGHT[0] + n[:, 1] * LIGHT[1] + n[:, 2] * LIGHT[2], 0.0)
-        return {"idx": idx, "t": t, "part": part, "normals": n, "colour": albedo * shade[:, None].astype(np.float32)}
+        lit = n[:, 0] * LIGHT[0] + n[:, 1] * LIGHT[1] + n[:, 2] * LIGHT[2]
+        colour = albedo * (AMBIENT + DIFFUSE * np.maximum(lit, 0.0))[:, None].astype(np.float32)
+        gloss = self._gloss[part]
+        if gloss.any():
+            half = LIGHT - d / np.linalg.norm(d, axis=1, keepdims=True)  # light + view direction
+            half /= np.linalg.norm(half, axis=1, keepdims=True)
+            facing = np.maximum(np.einsum("ij,ij->i", n, half), 0.0) * (lit > 0)
+            colour += (gloss * facing**SHININESS)[:, None].astype(np.float32)
+        return {"idx": idx, "t": t, "part": part, "normals": n, "colour": colour}
 
 
 def _pixel_centres(cam: Camera) -> np.ndarray:

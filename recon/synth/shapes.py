@@ -24,7 +24,8 @@ MAX_TEXEL = 30000.0  # cv2.remap turns coordinates into 16-bit integers: tiled u
 @dataclasses.dataclass(frozen=True, eq=False)
 class Part:
     """One textured surface: vertices (V,3), triangles (F,3), texel coordinates (V,2) into
-    ``texture``'s level 0, unit shading normals (V,3)."""
+    ``texture``'s level 0, unit shading normals (V,3); ``gloss``, the strength of a white specular
+    highlight (0: matte; recon.synth.render)."""
 
     name: str
     vertices: np.ndarray
@@ -32,6 +33,7 @@ class Part:
     uv: np.ndarray
     normals: np.ndarray
     texture: Texture
+    gloss: float = 0.0
 
     @property
     def texels_per_unit(self) -> float:

@@ -60,6 +60,8 @@ SCENES: dict[str, tuple[str, Callable[[np.random.Generator], zs.Setup]]] = {
                    "neighbours round the corners, sky, GPS tags with a few metres of noise", zs.walkaround),
     "wide_lens": ("a wide-angle lens with barrel distortion (k1 -0.08, corners imaged about 23 px inward at "
                   "640x480): a patio with a wall, planters, a sundial; full orbit", zs.wide_lens),
+    "glossy": ("view-dependent colour: glazed and lacquered things on a table, a highlight moving over each "
+               "from photo to photo; full orbit", zs.glossy),
 }
 
 
@@ -90,6 +92,8 @@ def zoo_digest(name: str) -> str:
     for part in (*setup.parts, *setup.transient):
         for array in (part.vertices, part.faces, part.uv, part.texture.levels[0]):
             digest.update(np.ascontiguousarray(array).tobytes())
+        if part.gloss:
+            digest.update(repr(part.gloss).encode())
     background = setup.background
     digest.update(repr((setup.layout, setup.views, setup.holdout, setup.focal_factor, setup.effects,
                         setup.jpeg_quality, setup.transient_span, sorted(setup.masked), setup.gps_sigma,

@@ -482,3 +482,28 @@ def wide_lens(rng: np.random.Generator) -> Setup:
              *block("bench", rect(1.2, 0.4, 0.5, (-0.4, -1.3)), 0.0, 0.42, slats, slats, d)]
     return Setup(parts, Orbit((0.0, 0.0, 0.4), 3.6, 32.0), focal_factor=0.65, background=gradient_sky,
                  radial=(-0.08, 0.0))
+
+
+def glossy(rng: np.random.Generator) -> Setup:
+    """Glazed and lacquered things on a table: a white highlight moves over each from photo to photo, so
+    a surface point's colour is not the same in every view (what a glaze, a car's paint or a window does)
+    and no texture can show every held-out view's highlights."""
+    d = 500.0
+    floor = tex(planks(1536, 1536, rng, (150, 120, 92), 96))  # 3 m at 500 texels/m: no repeat
+    tabletop = tex(mottled(512, 512, [(92, 70, 52), (70, 54, 42)], rng, 0.3, beta=0.9))
+    vase = [(0.0, 0.74), (0.1, 0.74), (0.14, 0.8), (0.15, 0.9), (0.1, 1.02), (0.06, 1.08), (0.075, 1.14),
+            (0.0, 1.14)]
+    bowl = [(0.0, 0.74), (0.07, 0.74), (0.16, 0.8), (0.2, 0.86), (0.18, 0.87), (0.0, 0.82)]
+    lacquer = grid_cells(photo("motorcycle"), 2, 1, (256, 256))
+    parts = [ground("floor", 1.5, floor, d),
+             *(dataclasses.replace(p, gloss=0.3) for p in block("table", rect(1.2, 0.8), 0.0, 0.74, tabletop, tabletop,
+                                                                   d)),
+             dataclasses.replace(lathe("vase", (-0.25, 0.1, 0.0), vase, photo_tex("coffee", 512, 256,
+                                                                                  tint=(0.7, 0.8, 1.1))), gloss=0.7),
+             dataclasses.replace(lathe("bowl", (0.3, -0.15, 0.0), bowl, photo_tex("clock", 512, 128,
+                                                                                 tint=(1.1, 0.9, 0.7))), gloss=0.5),
+             *(dataclasses.replace(p, gloss=0.6) for p in block("box", rect(0.22, 0.16, 0.4, (0.25, 0.22)), 0.74,
+                                                                 0.12, tex(lacquer[0]), tex(lacquer[1]), d)),
+             dataclasses.replace(sphere("ball", np.array([-0.2, -0.22, 0.8]), 0.06, photo_tex("logo", 256, 128)),
+                                 gloss=0.8)]
+    return Setup(parts, Orbit((0.0, 0.0, 0.8), 1.6, 35.0), background=np.array([0.35, 0.36, 0.4], np.float32))

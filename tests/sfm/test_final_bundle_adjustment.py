@@ -5,7 +5,7 @@ import numpy as np
 import pycolmap
 import pytest
 
-from recon.sparse.mapping import final_bundle_adjustment
+from recon.sparse.mapping import drop_loose_points, final_bundle_adjustment
 from recon.stages.sfm import SfmConfig
 
 WIDTH, HEIGHT, FOCAL = 640, 480, 576.0
@@ -132,3 +132,18 @@ def test_observations_left_far_off_are_dropped_from_the_model_kept():
     assert not rec.image(3).points2D[5].has_point3D()
     rec.update_point_3d_errors()
     assert max(rec.point3D(p).error for p in rec.point3D_ids()) < outlier_px()
+
+
+def test_points_several_times_the_median_error_off_are_dropped():
+    """30 of 600 points whose observations scatter 1.5 px about where the point projects (a highlight's
+    virtual image, seen from each view somewhere else) go; points with the keypoints' noise alone stay."""
+    rec = _model(k1=0.0, spread=1.2)
+    rng = np.random.default_rng(1)
+    loose = sorted(rec.points3D)[:30]
+    for point_id in loose:
+        for element in rec.points3D[point_id].track.elements:
+            observation = rec.image(element.image_id).points2D[element.point2D_idx]
+            observation.xy = observation.xy + rng.normal(scale=1.5, size=2)
+    assert drop_loose_points(rec) == 30
+    assert not set(loose) & set(rec.points3D) and rec.num_points3D() == 570
+    assert drop_loose_points(rec) == 0  # the noise alone stays within 3 times the median

@@ -5,6 +5,8 @@ cameras: that ties cameras, depth maps and the surface together for every view, 
 """
 
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -200,3 +202,23 @@ def test_a_lens_with_distortion_bends_the_photo(rendered):
     np.testing.assert_allclose(uv[:, 0], np.column_stack([u + 0.5, v + 0.5]), atol=1e-4)
     pinhole = cam.K @ np.array([*cam.rays(np.array([[0.5, 0.5]]))[0]])
     assert np.hypot(*(pinhole[:2] - cam.K[:2, 2])) > np.hypot(*(np.array([0.5, 0.5]) - cam.K[:2, 2])) + 4
+
+
+def test_glossy_parts_show_a_highlight_that_moves_with_the_view(rendered):
+    """glossy's glazed parts add a white highlight to their colour, and only they do; the highlight falls on
+    different places from different views (the colour of a point depends on the view)."""
+    setup = zoo_setup("glossy")
+    info = rendered("glossy")
+    shiny = [i for i, p in enumerate(setup.parts) if p.gloss > 0]
+    assert shiny and len(shiny) < len(setup.parts)
+    glossy = Renderer(assemble(setup.parts), setup.background)
+    matte = Renderer(assemble([dataclasses.replace(p, gloss=0.0) for p in setup.parts]), setup.background)
+    lit = []
+    for cam in info.cameras().values():
+        extra = glossy.render(cam, supersample=1)[0].astype(int) - matte.render(cam, supersample=1)[0].astype(int)
+        assert (extra >= 0).all()  # a highlight only adds light
+        on = extra.max(axis=2) > 0
+        assert np.isin(glossy.part_ids(cam)[on], shiny).all()
+        lit.append(on)
+    assert max(on.sum() for on in lit) > 0.01 * W * H
+    assert any((a != b).any() for a, b in zip(lit, lit[1:]))
