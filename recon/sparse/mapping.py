@@ -258,7 +258,7 @@ def drop_loose_points(rec) -> int:
     errors between the cameras had a median of 0.206 degrees, 0.088 with the same scene rendered matte;
     its floor, seen from 1-2 m, then lay 1.4 thresholds off in places and the fused cloud's accuracy fell
     from 97 % to 89 %. Adjusted again without the 3x-median points (232 of 1,906), 0.137 degrees. On 13 of
-    the zoo's other 15 scenes the same cut lowered that median by 10-55 % (walkaround 0.281 -> 0.227,
+    the zoo's other 15 scenes the same cut lowered that median by 9-55 % (walkaround 0.281 -> 0.227,
     turntable_black 0.229 -> 0.128, far_field 0.114 -> 0.070); noisy_phone 0.040 -> 0.044 and
     masked_object 0.019 -> 0.021 rose (docs/DECISIONS.md)."""
     rec.update_point_3d_errors()
@@ -280,9 +280,10 @@ def outlier_px() -> float:
 
 
 def _adjust_and_choose(rec, cfg, initial: dict[int, np.ndarray], exif_focal: frozenset[int] = frozenset()):
-    """One last global BA over the finished model, with a robust loss, again without its observations over
-    the mapper's outlier threshold and its loose points (:func:`drop_loose_points`). Then two refinements that the photos may not constrain, each kept only
-    where it explains the observations better (:func:`_explains_better`):
+    """One last global BA over the finished model, with a robust loss, and again without its observations
+    over the mapper's outlier threshold and its loose points (:func:`drop_loose_points`). Then two
+    refinements that the photos may not constrain, each kept only where it explains the observations
+    better (:func:`_explains_better`):
 
     - distortion (``cfg.refine_extra_params``): the model is adjusted again with each camera's
       distortion held at its ``initial`` value (camera id -> parameters the mapper started from: zero,
