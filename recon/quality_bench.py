@@ -150,9 +150,7 @@ def _true_rays(cam) -> tuple[np.ndarray, np.ndarray]:
     """Origins and directions (height, width, 3; world frame) of the rays through the pixel centres of the
     ground-truth camera ``cam`` (its lens's distortion undone)."""
     u, v = np.meshgrid(np.arange(cam.width) + 0.5, np.arange(cam.height) + 0.5)
-    directions = cam.rays(np.column_stack([u.ravel(), v.ravel()])) @ cam.R
-    return (np.broadcast_to(cam.center, directions.shape).reshape(cam.height, cam.width, 3),
-            directions.reshape(cam.height, cam.width, 3))
+    return _world_rays(cam.rays(np.column_stack([u.ravel(), v.ravel()])), cam.R, cam.center, cam.width, cam.height)
 
 
 def _photo_rays(camera, cam_from_world, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
@@ -161,9 +159,16 @@ def _photo_rays(camera, cam_from_world, width: int, height: int) -> tuple[np.nda
     u, v = np.meshgrid((np.arange(width) + 0.5) * camera.width / width, (np.arange(height) + 0.5) * camera.height / height)
     xy = camera.cam_from_img(np.column_stack([u.ravel(), v.ravel()]))
     R = cam_from_world.rotation.matrix()
-    directions = np.column_stack([xy, np.ones(len(xy))]) @ R
-    origin = -R.T @ cam_from_world.translation
-    return np.broadcast_to(origin, directions.shape).reshape(height, width, 3), directions.reshape(height, width, 3)
+    return _world_rays(np.column_stack([xy, np.ones(len(xy))]), R, -R.T @ cam_from_world.translation, width, height)
+
+
+def _world_rays(directions: np.ndarray, R: np.ndarray, centre: np.ndarray, width: int,
+                height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Origins and directions (height, width, 3; world frame) of a camera's pixel rays, given their
+    camera-frame ``directions`` (width * height, 3; row after row), its world-to-camera rotation ``R`` and
+    its ``centre``."""
+    world = directions @ R
+    return np.broadcast_to(centre, world.shape).reshape(height, width, 3), world.reshape(height, width, 3)
 
 
 def holdout_surface(scene, name: str, depth: np.ndarray) -> np.ndarray:

@@ -65,11 +65,7 @@ class Camera:
         """Pixels (N, 2) and depths (N,) of world points (N, 3), through the lens's distortion."""
         if not self.distorted:
             return project(self.K, self.R, self.t, X)
-        X = np.asarray(X, dtype=float).reshape(-1, 3)
-        xc = apply_matrix(self.R, X) + np.asarray(self.t, dtype=float)
-        z = xc[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            xy = xc[:, :2] / z[:, None]
+        xy, z = project(np.eye(3), self.R, self.t, X)  # normalised image coordinates
         r2 = np.sum(xy * xy, axis=1, keepdims=True)
         k1, k2 = self.radial
         return apply_matrix(self.K[:2, :2], xy * (1 + k1 * r2 + k2 * r2 * r2)) + self.K[:2, 2], z

@@ -233,13 +233,19 @@ def final_bundle_adjustment(rec, cfg, initial: dict[int, np.ndarray], exif_focal
     it can leave observations far off that only the refinement explained: on the test suite's 16-view
     scene, with its distortion refused, 4 such observations took one photo's mean error to 4.3 px and the
     model's to 0.51 px (0.17 px without them)."""
+    rec = _adjust_and_choose(rec, cfg, initial, exif_focal)
+    drop_outlier_observations(rec)
+    return rec
+
+
+def drop_outlier_observations(rec) -> None:
+    """Delete ``rec``'s observations over the mapper's outlier threshold (:func:`outlier_px`), and the points
+    left with fewer than two; logged."""
     import pycolmap
 
-    rec = _adjust_and_choose(rec, cfg, initial, exif_focal)
     dropped = pycolmap.ObservationManager(rec).filter_all_points3D(outlier_px(), 0.0)
     if dropped:
         log.info("final BA: %d observations over %g px off dropped", dropped, outlier_px())
-    return rec
 
 
 #: a point whose track's mean reprojection error exceeds this many times the model's median is loose
@@ -301,7 +307,7 @@ def _adjust_and_choose(rec, cfg, initial: dict[int, np.ndarray], exif_focal: fro
     import pycolmap
 
     _bundle_adjust(rec, cfg, cfg.refine_principal_point)
-    pycolmap.ObservationManager(rec).filter_all_points3D(outlier_px(), 0.0)  # a wild observation, not its point
+    drop_outlier_observations(rec)  # a wild observation goes, not its point with it
     loose = drop_loose_points(rec)
     if loose:
         log.info("final BA: %d points whose reprojection error exceeds %g times the median dropped; adjusted "

@@ -95,9 +95,10 @@ def zoo_digest(name: str) -> str:
         if part.gloss:
             digest.update(repr(part.gloss).encode())
     background = setup.background
+    lens = (setup.radial,) if any(setup.radial) else ()  # none for a pinhole: earlier renderings stay valid
     digest.update(repr((setup.layout, setup.views, setup.holdout, setup.focal_factor, setup.effects,
-                        setup.jpeg_quality, setup.transient_span, sorted(setup.masked), setup.gps_sigma,
-                        *((setup.radial,) if any(setup.radial) else ()), getattr(background, "__name__", None) or np.asarray(background).tolist())).encode())
+                        setup.jpeg_quality, setup.transient_span, sorted(setup.masked), setup.gps_sigma, *lens,
+                        getattr(background, "__name__", None) or np.asarray(background).tolist())).encode())
     return digest.hexdigest()[:16]
 
 
