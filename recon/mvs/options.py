@@ -42,6 +42,12 @@ class MVSOptions:
     geometric_max_error: float = opt(3.0, "reprojection errors are capped at this value (px) inside the cost", gt=0.0)
     filter_max_cost: float = opt(0.6, "filtering: largest matching cost (1 - NCC, mean of the K best views) kept", gt=0.0, le=2.0)
     filter_min_consistent: int = opt(1, "filtering: a pixel is kept when at least this many source depth maps agree with it (fusion then asks fusion.min_num_pixels views of it); 1 rather than 2: zoo, docs/DECISIONS.md", ge=0)
+    filter_unconfirmed_cost: float = opt(0.3, "cpu filtering: a pixel that fewer than filter_min_consistent source depth "
+                                              "maps confirm is kept where its matching cost is at most this (0: never). "
+                                              "Surface only two or three photos see, often at a grazing angle, is missing "
+                                              "from their photometric maps, which the confirmation reads; a window matched "
+                                              "this well is seldom wrong, and fusion still asks two views to agree (zoo: "
+                                              "docs/DECISIONS.md)", ge=0.0, le=2.0)
     filter_max_reprojection: float = opt(1.0, "filtering: largest forward-backward reprojection error (px) for a source to agree", gt=0.0)
     filter_max_depth_error: float = opt(0.01, "filtering: largest distance, relative to depth, between a source's surface point and the pixel's plane for the source to agree", gt=0.0)
     filter_grazing_allowance: float = opt(3.0, "filtering (CPU backend): on a plane seen at a grazing angle from a source, the depth difference along its ray may exceed filter_max_depth_error by up to this factor (1: a plain depth difference)", ge=1.0)

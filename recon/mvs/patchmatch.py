@@ -1093,8 +1093,9 @@ def untextured(ref: np.ndarray, options: MVSOptions) -> np.ndarray:
 def filter_depth(view: Checked, state: State, options: MVSOptions, blank: np.ndarray | None = None) -> State:
     """Zero the pixels whose photometric cost over the sources that see them (:func:`seen_cost` of
     ``state.cost``, as :func:`geometric_depth` and :func:`photometric_costs` give it) is high, that
-    fewer than ``filter_min_consistent`` source depth maps confirm, or whose own side of the window is
-    untextured (:func:`untextured`, or ``blank`` where the caller computed it already)."""
+    fewer than ``filter_min_consistent`` source depth maps confirm unless that cost is at most
+    ``filter_unconfirmed_cost``, or whose own side of the window is untextured (:func:`untextured`, or
+    ``blank`` where the caller computed it already)."""
     level = view.level
     g = level.geometry
     count = consistent_views(state.depth, state.normal, g.kinv, g.A, g.b, view.src_depth, view.depth_dims, g.M, g.c,
@@ -1102,7 +1103,8 @@ def filter_depth(view: Checked, state: State, options: MVSOptions, blank: np.nda
                              options.filter_grazing_allowance)
     cost = np.empty_like(state.cost)
     seen_cost(state.depth, state.normal, g.kinv, g.A, g.b, level.dims, state.views, state.cost, options.top_k, cost)
-    keep = (cost <= options.filter_max_cost) & (count >= options.filter_min_consistent)
+    confirmed = (count >= options.filter_min_consistent) | (cost <= options.filter_unconfirmed_cost)
+    keep = (cost <= options.filter_max_cost) & confirmed
     keep &= state.depth > 0
     if options.min_texture > 0:
         keep &= ~(untextured(level.ref, options) if blank is None else blank)

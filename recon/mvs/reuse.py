@@ -85,7 +85,7 @@ FINAL_VERSION = 2
 #: read: they key a view's final maps, not its photometric ones, so changing one runs the final part again
 #: from the stored photometric maps
 FINAL_ONLY = ("geometric", "geometric_iterations", "geometric_weight", "geometric_max_error", "filter_max_cost",
-              "filter_min_consistent", "filter_max_reprojection", "filter_max_depth_error",
+              "filter_min_consistent", "filter_unconfirmed_cost", "filter_max_reprojection", "filter_max_depth_error",
               "filter_grazing_allowance", "planar_fill", "clear_background", "drop_fattened")
 
 

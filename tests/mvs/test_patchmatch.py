@@ -13,6 +13,9 @@ from recon.mvs.options import MVSOptions
 WIDTH, HEIGHT = 96, 72
 OPTIONS = MVSOptions(iterations=4)
 THREE = dataclasses.replace(OPTIONS, top_k=3)  # the mean over three sources, one or two of which look elsewhere
+# the filter's confirmation by the sources' depth maps alone: on this smooth texture a plane 5 % off costs
+# under filter_unconfirmed_cost at about half its pixels (its shift in the sources is under a pixel)
+CONFIRMED, THREE_CONFIRMED = (dataclasses.replace(o, filter_unconfirmed_cost=0.0) for o in (OPTIONS, THREE))
 SKY = 0.75
 CENTRES = [(0.0, 0.0, 0.0), (0.3, 0.0, 0.0), (-0.3, 0.05, 0.0), (0.0, 0.25, 0.05)]
 
@@ -183,10 +186,10 @@ def _checked(images, cams, depth_maps):
 def test_filter_keeps_confirmed_pixels_only(plane):
     images, cams, depths, normal = plane
     view = _checked(images, cams, depths[1:])
-    kept = pm.filter_depth(view, _costed(view, depths[0], normal), OPTIONS)
+    kept = pm.filter_depth(view, _costed(view, depths[0], normal), CONFIRMED)
     assert (kept.depth[25:-25, 25:-25] > 0).all()
     assert ((kept.depth == 0) == (kept.normal == 0).all(axis=-1)).all()
-    dropped = pm.filter_depth(view, _costed(view, depths[0] * 1.05, normal), OPTIONS)
+    dropped = pm.filter_depth(view, _costed(view, depths[0] * 1.05, normal), CONFIRMED)
     assert not dropped.depth.any()
 
 
@@ -236,11 +239,28 @@ def test_a_pixel_that_one_source_sees_can_pass_the_filter(plane):
     inner = (slice(12, -12), slice(24, -12))  # (the one source, to the right, misses the left columns)
     true = _costed(view, depths[0], normal, THREE)
     assert float(np.min(true.cost[inner])) > 2 / 3 > THREE.filter_max_cost
-    kept = pm.filter_depth(view, true, THREE)
+    kept = pm.filter_depth(view, true, THREE_CONFIRMED)
     assert np.mean(kept.depth[inner] > 0) > 0.95
     assert float(np.median(kept.cost[inner])) < 0.2  # the one source's own matching cost
-    wrong = pm.filter_depth(view, _costed(view, depths[0] * 1.05, normal, THREE), THREE)
+    wrong = pm.filter_depth(view, _costed(view, depths[0] * 1.05, normal, THREE), THREE_CONFIRMED)
     assert not wrong.depth[inner].any()
+
+
+def test_a_well_matched_pixel_no_source_map_confirms_is_kept(plane):
+    """Surface the sources' own depth maps miss (here: they hold none): no source confirms the true
+    plane, which matches well, so filter_unconfirmed_cost alone keeps it; a plane 20 % off (shifted by
+    about 3 px in the sources) matches worse and still goes, and with the option off (0) the unconfirmed
+    true plane goes too."""
+    images, cams, depths, normal = plane
+    empty = [np.zeros_like(d) for d in depths[1:]]
+    view = _checked(images, cams, empty)
+    inner = (slice(25, -25), slice(25, -25))
+    true = _costed(view, depths[0], normal)
+    assert OPTIONS.filter_unconfirmed_cost > 0
+    assert np.mean(pm.filter_depth(view, true, OPTIONS).depth[inner] > 0) > 0.95
+    assert not pm.filter_depth(view, true, CONFIRMED).depth.any()
+    wrong = _costed(view, depths[0] * 1.2, normal)
+    assert np.mean(pm.filter_depth(view, wrong, OPTIONS).depth[inner] > 0) < 0.05
 
 
 def test_a_surface_that_one_source_sees_is_found_where_the_others_see_something_else(plane):

@@ -64,12 +64,14 @@ def test_fewer_views_leave_less_surface_seen_twice(tmp_path):
     assert quality_bench.f_ceiling(1.0) == 1.0 and quality_bench.f_ceiling(0.8) == pytest.approx(1.6 / 1.8)
 
 
-def test_the_table_prints_maxf_and_seen2_where_they_were_measured(capsys):
-    rows = [_row("a", 0.9, 0.8, 26.0, 22.0, 0.99) | {"seen_twice": 0.8, "holdout_seen_twice": 0.987},
+def test_the_table_prints_maxf_seen2_and_vertex_density_where_they_were_measured(capsys):
+    rows = [_row("a", 0.9, 0.8, 26.0, 22.0, 0.99) | {"seen_twice": 0.8, "holdout_seen_twice": 0.987,
+                                                    "vertices_per_pixel": 3.87},
             _row("b", 0.7, 0.6, 24.0, 23.0, 0.95) | {"holdout_seen_twice": 0.961}]
     quality_bench.print_table(rows, quality_bench.summary(rows))
     lines = capsys.readouterr().out.splitlines()
-    assert "maxF" in lines[0] and "seen2" in lines[0]
+    assert "maxF" in lines[0] and "seen2" in lines[0] and "vtx/px" in lines[0]
+    assert "3.87" in next(line for line in lines if line.startswith("a "))
     assert f"{1.6 / 1.8:.3f}" in next(line for line in lines if line.startswith("a "))
     assert "0.987" in next(line for line in lines if line.startswith("a "))
     assert "0.974" in next(line for line in lines if line.startswith("mean"))
@@ -124,3 +126,26 @@ def test_placed_views_are_rendered_through_the_models_camera_with_its_distortion
     u, v = np.meshgrid(np.arange(64) + 0.5, np.arange(48) + 0.5)
     assert np.allclose(back, np.stack([u, v], -1), atol=1e-6)
     assert np.abs(directions - d).max() > 0.01  # the corners' rays bend away from the pinhole's
+
+
+def test_vertices_per_pixel_counts_the_vertices_a_view_sees_on_its_surface():
+    """A wall 2 m away filling a 40x30 view, sampled at two vertices per pixel across and one down: 2 per
+    pixel. Vertices behind it, off its depth by more than the tolerance, or over pixels outside the true
+    surface do not count."""
+    import numpy as np
+
+    from recon.eval.groundtruth import Camera
+
+    cam = Camera(K=np.array([[20.0, 0, 20], [0, 20.0, 15], [0, 0, 1]]), R=np.eye(3), t=np.zeros(3), width=40, height=30)
+    u, v = np.meshgrid(np.arange(80) / 2 + 0.25, np.arange(30) + 0.5)
+    uv = np.column_stack([u.ravel(), v.ravel()])
+    wall = cam.backproject(uv, np.full(len(uv), 2.0))
+    depth = np.full((30, 40), 2.0)
+    everywhere = np.ones((30, 40), bool)
+    assert quality_bench.vertices_per_pixel(wall, cam, depth, everywhere, 0.01) == pytest.approx(2.0)
+    behind = cam.backproject(uv, np.full(len(uv), 3.0))
+    assert quality_bench.vertices_per_pixel(np.vstack([wall, behind]), cam, depth, everywhere, 0.01) == pytest.approx(2.0)
+    left_half = everywhere.copy()
+    left_half[:, 20:] = False
+    assert quality_bench.vertices_per_pixel(wall, cam, depth, left_half, 0.01) == pytest.approx(2.0)
+    assert quality_bench.vertices_per_pixel(wall[: len(wall) // 2], cam, depth, everywhere, 0.01) == pytest.approx(1.0)
