@@ -25,10 +25,11 @@ class MeshOptions:
                                     "its densities differ in the last digits, so trimming cuts other faces)")
     density_quantile: float = opt(0.05, "drop Poisson vertices whose point density is below this quantile and more "
                                         "than mesh.density_levels below the median's (0: no density trim)", ge=0.0, lt=1.0)
-    density_levels: float = opt(1.5, "a vertex of the low-density quantile is dropped only where its points lie sparser "
+    density_levels: float = opt(2.0, "a vertex of the low-density quantile is dropped only where its points lie sparser "
                                      "than the median vertex's by more than this many octree levels (each: twice the "
                                      "spacing); an evenly sampled object keeps its whole surface, and a part of it seen "
-                                     "half as densely too. 0: the quantile alone (zoo, docs/DECISIONS.md)", ge=0.0)
+                                     "a sixth as densely too (an untextured side whose depth maps hold its rims). 0: the "
+                                     "quantile alone (zoo, docs/DECISIONS.md)", ge=0.0)
     bbox_margin: float = opt(0.02, "trim Poisson faces outside the points' box grown by this fraction of its size", ge=0.0)
     trim_distance: float = opt(4.0, "drop faces farther than this many Poisson cells from any input point (0: off)", ge=0.0)
     voxel_size: float = opt(0.0, "TSDF voxel size in scene units (0: voxel_fraction x scene extent)", ge=0.0)
