@@ -15,9 +15,9 @@ median) cut too much of an open scene whose true surface is sparsely seen: walka
 far apart as elsewhere (turntable_black's dark lower vase, which the depth maps hardly hold) sits one
 level below the median and was cut, and the held-out views saw the plinth through the hole; zoo:
 held-out coverage up on 6 of 15 scenes and down on none, mesh F@0.2 % mean and worst up. 2 levels
-rather than 1.5: the untextured sides of clutter's cans and balls (one flat grey), whose depth maps hold
-only their rims, and street_forward's near walls at grazing angles are kept where Poisson closes them
-(docs/DECISIONS.md).
+rather than 1.5: the flat grey sides of clutter's large cans, whose depth maps hold only their rims, are
+kept where Poisson closes them; zoo: held-out coverage mean and worst up, mesh F@0.2 % worst up and mean
+unchanged (docs/DECISIONS.md).
 """
 
 from __future__ import annotations

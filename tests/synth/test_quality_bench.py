@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from recon import quality_bench
@@ -107,7 +108,6 @@ def test_placed_views_are_rendered_through_the_models_camera_with_its_distortion
     distortion, each ray lands back on its pixel's centre through the camera, not where K alone puts it."""
     from types import SimpleNamespace
 
-    import numpy as np
     import pycolmap
 
     from recon.surface.raycast import pixel_rays
@@ -132,8 +132,6 @@ def test_vertices_per_pixel_counts_the_vertices_a_view_sees_on_its_surface():
     """A wall 2 m away filling a 40x30 view, sampled at two vertices per pixel across and one down: 2 per
     pixel. Vertices behind it, off its depth by more than the tolerance, or over pixels outside the true
     surface do not count."""
-    import numpy as np
-
     from recon.eval.groundtruth import Camera
 
     cam = Camera(K=np.array([[20.0, 0, 20], [0, 20.0, 15], [0, 0, 1]]), R=np.eye(3), t=np.zeros(3), width=40, height=30)
