@@ -22,7 +22,9 @@ The variant follows Gipuma (Galliani et al., ICCV 2015) and ACMH/ACMM (Xu and Ta
 * coarse to fine (ACMM's multi-scale scheme without its detail restorer): each finer level starts from
   the coarser planes re-intersected with its own pixel rays, then runs a few sweeps; there, each
   pixel is matched only against the K sources that were best for its upsampled plane (a cheap form
-  of view selection: it divides the cost of the fine levels by about S / K), and the finest level
+  of view selection: it divides the cost of the fine levels by about S / K), a neighbour's plane also
+  against the neighbour's K (its sources travel with it, and replace the pixel's where it wins: the
+  views are propagated as the planes are), and the finest level
   propagates from the four near regions only; a candidate equal to the pixel's plane, or to a
   neighbour's plane already tested at the pixel (neighbours often share one), is skipped;
 * a hypothesis is abandoned as soon as the costs of the sources matched so far prove that it cannot
@@ -330,6 +332,21 @@ def _best_views(costs, k):
                 best = s
         mask |= 1 << best
     return mask
+
+
+@njit(cache=True)
+def _best_views_in(costs, mask, k):
+    """Bit mask of the k sources of the bit ``mask`` with the lowest costs."""
+    best_mask = 0
+    for _ in range(k):
+        best = -1
+        for s in range(costs.shape[0]):
+            if (mask >> s) & 1 and not (best_mask >> s) & 1 and (best < 0 or costs[s] < costs[best]):
+                best = s
+        if best < 0:
+            break
+        best_mask |= 1 << best
+    return best_mask
 
 
 @njit(cache=True, fastmath=True)
@@ -690,7 +707,13 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
     """One half sweep: every pixel of ``colour`` ((x + y) % 2) tests the planes of the best
     neighbours of the first ``n_regions`` regions (propagation), then perturbed and, with
     ``random_candidates``, random planes (refinement), keeping the cheapest. Each pixel is matched
-    against the sources of its view mask."""
+    against the sources of its view mask; a neighbour's plane also against the neighbour's, and where
+    it wins, the pixel's mask becomes the best top_k of the two masks' sources.
+
+    A pixel's mask is chosen once per level, for its upsampled plane (:func:`evaluate`). Where that
+    plane is wrong, the chosen source may not see the pixel's surface at all (a walk round a building:
+    ground two photos share), and the right plane a neighbour holds, judged by that source alone, loses.
+    Carried with the plane, the neighbour's source judges it as it judged it at the neighbour."""
     height, width = ref.shape
     n = window[2] * window[2]
     for y in prange(height):
@@ -728,8 +751,9 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
                 tested[n_tested, 2] = n1
                 tested[n_tested, 3] = n2
                 n_tested += 1
-                h = hypothesis_cost(x, y, d, n0, n1, n2, mask, weights, centred, ref_var, window, kinv,
-                                    A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k,
+                with_views = mask | views[yn, xn]  # the neighbour's sources come with its plane
+                h = hypothesis_cost(x, y, d, n0, n1, n2, with_views, weights, centred, ref_var, window,
+                                    kinv, A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k,
                                     min_var, costs, scratch, best)
                 if h < best:
                     best = h
@@ -737,6 +761,8 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
                     b0 = n0
                     b1 = n1
                     b2 = n2
+                    if with_views != mask:
+                        mask = _best_views_in(costs, with_views, top_k)
             # refinement around the best plane found so far
             pk = _hash32(key ^ _hash32(y * width + x))
             rx, ry, rz = _ray(kinv, x, y)
@@ -779,6 +805,7 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
             normal[y, x, 1] = b1
             normal[y, x, 2] = b2
             cost[y, x] = best
+            views[y, x] = mask
 
 
 @njit(parallel=True, cache=True, fastmath=True)

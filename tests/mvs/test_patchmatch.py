@@ -279,6 +279,29 @@ def test_a_surface_that_one_source_sees_is_found_where_the_others_see_something_
     assert found["best"] > 0.95 and found["mean of three"] < 0.8
 
 
+def test_a_neighbours_source_travels_with_its_plane(plane):
+    """Above the coarsest level each pixel is matched against the source chosen for its upsampled plane.
+    Where that plane was wrong, so may the source be: here the right part of the reference holds a plane
+    5 % off, matched against a source that sees something else there. The left part holds the true plane
+    with the one source that sees it. A neighbour's plane is tested with the neighbour's source too, so
+    the true plane spreads across the right part and takes its source along; judged by the wrong source
+    alone (the pixel's own), it would not."""
+    images, cams, depths, normal = plane
+    elsewhere, _, _, _ = _plane_scene(seed=5)
+    level = pm.make_level(images[0], [images[1], elsewhere[2], elsewhere[3]], cams[0], cams[1:], 1.0)
+    right = (slice(12, -12), slice(48, -12))
+    start = depths[0].copy()
+    start[:, 48:] *= 1.05
+    state = pm.State(start, normal.copy(), np.zeros_like(start), np.full(start.shape, 0b001, np.int64))
+    state.views[:, 48:] = 0b010
+    pm.evaluate_state(level, state, OPTIONS, pm.KEEP_VIEWS)
+    pm.sweeps(level, state, OPTIONS, (1.0, 4.0), iterations=2, perturbation=0.01, random_candidates=False,
+              far_regions=True, seed=0, first_sweep=0)
+    found = np.abs(state.depth - depths[0])[right] < 0.01 * depths[0][right]
+    assert found.mean() > 0.95
+    assert (state.views[right][found] == 0b001).all()
+
+
 def test_the_uniform_side_of_an_edge_gets_no_depth():
     """Pixels of a flat light grey region beside a textured one match on the texture alone (their
     bilateral window's variance comes from across the edge): given the edge's plane they pass the cost and the

@@ -42,6 +42,7 @@ def test_bench_runs_a_tiny_scene_end_to_end(tmp_path, capsys):
     assert row["placed"] >= 1 and row["psnr_placed"] > 10
     assert 0.0 <= row["pose_auc@5"] <= 1.0 and 0.0 < row["depth"]["completeness@0.002"] <= 1.0
     assert 0.0 < row["seen_twice"] <= 1.0
+    assert sum(g["share"] for g in row["fused_by_views"].values()) == pytest.approx(1.0)
     assert "turntable_black" in capsys.readouterr().out
 
 
@@ -59,15 +60,32 @@ def test_fewer_views_leave_less_surface_seen_twice(tmp_path):
     the share of the held-out views' surface two input views see."""
     few = quality_bench.scene_for("turntable_black", tmp_path / "a" / "scene", 80, 60, 3)
     many = quality_bench.scene_for("turntable_black", tmp_path / "b" / "scene", 80, 60, 12)
-    assert 0.0 < quality_bench.seen_twice(few) < quality_bench.seen_twice(many) <= 1.0
+    few_seen, many_seen = (quality_bench.seen_twice(quality_bench.surface_views(s)[1]) for s in (few, many))
+    assert 0.0 < few_seen < many_seen <= 1.0
     assert 0.0 < quality_bench.holdout_seen_twice(few) < quality_bench.holdout_seen_twice(many) <= 1.0
     assert quality_bench.holdout_seen_twice(many) > 0.9  # a full orbit of 12 sees what the held-out views see
     assert quality_bench.f_ceiling(1.0) == 1.0 and quality_bench.f_ceiling(0.8) == pytest.approx(1.6 / 1.8)
 
 
+def test_completeness_by_views_splits_the_fused_clouds_completeness_by_how_many_views_see_the_surface():
+    points = np.column_stack([np.arange(8.0), np.zeros(8), np.zeros(8)])
+    counts = np.array([1, 2, 2, 3, 4, 5, 7, 9])
+    seen_thrice = points[counts >= 3] + [0.0, 0.04, 0.0]  # within the limit of the surface three views see
+    cloud = np.vstack([seen_thrice, [[1.0, 0.5, 0.0]]])  # and one point beyond it, beside a two-view point
+    groups = quality_bench.completeness_by_views(points, counts, cloud, limit=0.05)
+    assert groups == {"1": {"share": 1 / 8, "completeness": 0.0}, "2": {"share": 2 / 8, "completeness": 0.0},
+                      "3-4": {"share": 2 / 8, "completeness": 1.0}, "5+": {"share": 3 / 8, "completeness": 1.0}}
+    overall = np.mean([np.min(np.linalg.norm(cloud - p, axis=1)) <= 0.05 for p in points])
+    assert sum(g["share"] * g["completeness"] for g in groups.values()) == pytest.approx(overall)
+    empty = quality_bench.completeness_by_views(points, counts, np.empty((0, 3)), limit=0.05)
+    assert all(g["completeness"] == 0.0 for g in empty.values()) and set(empty) == set(groups)
+
+
 def test_the_table_prints_maxf_seen2_and_vertex_density_where_they_were_measured(capsys):
     rows = [_row("a", 0.9, 0.8, 26.0, 22.0, 0.99) | {"seen_twice": 0.8, "holdout_seen_twice": 0.987,
-                                                    "vertices_per_pixel": 3.87},
+                                                    "vertices_per_pixel": 3.87,
+                                                    "fused_by_views": {"2": {"share": 0.25, "completeness": 0.3},
+                                                                       "5+": {"share": 0.75, "completeness": 0.99}}},
             _row("b", 0.7, 0.6, 24.0, 23.0, 0.95) | {"holdout_seen_twice": 0.961}]
     quality_bench.print_table(rows, quality_bench.summary(rows))
     lines = capsys.readouterr().out.splitlines()
@@ -76,6 +94,9 @@ def test_the_table_prints_maxf_seen2_and_vertex_density_where_they_were_measured
     assert f"{1.6 / 1.8:.3f}" in next(line for line in lines if line.startswith("a "))
     assert "0.987" in next(line for line in lines if line.startswith("a "))
     assert "0.974" in next(line for line in lines if line.startswith("mean"))
+    split = lines[next(i for i, line in enumerate(lines) if "where 1, 2, 3-4 or 5+ input views" in line) + 2]
+    assert split.split() == ["a", "-", "0.250", "/", "0.300", "-", "0.750", "/", "0.990"]
+    assert not any(line.startswith("b ") for line in lines[lines.index(split):])  # b has no split
 
 
 def test_compare_prints_both_runs_and_counts_moves_beyond_the_seed(tmp_path, capsys):
