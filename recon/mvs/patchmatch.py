@@ -322,20 +322,7 @@ def _mean_of_best(costs, mask, k, scratch):
 
 
 @njit(cache=True)
-def _best_views(costs, k):
-    """Bit mask of the k sources with the lowest costs."""
-    mask = 0
-    for _ in range(min(k, costs.shape[0])):
-        best = -1
-        for s in range(costs.shape[0]):
-            if not (mask >> s) & 1 and (best < 0 or costs[s] < costs[best]):
-                best = s
-        mask |= 1 << best
-    return mask
-
-
-@njit(cache=True)
-def _best_views_in(costs, mask, k):
+def _best_views(costs, mask, k):
     """Bit mask of the k sources of the bit ``mask`` with the lowest costs."""
     best_mask = 0
     for _ in range(k):
@@ -665,7 +652,7 @@ def evaluate(ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max, 
                                          kinv, A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max,
                                          top_k, min_var, costs, scratch)
             if views_mode == SELECT_VIEWS:
-                views[y, x] = _best_views(costs, top_k)
+                views[y, x] = _best_views(costs, everything, top_k)
 
 
 @njit(cache=True, fastmath=True)
@@ -762,7 +749,7 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
                     b1 = n1
                     b2 = n2
                     if with_views != mask:
-                        mask = _best_views_in(costs, with_views, top_k)
+                        mask = _best_views(costs, with_views, top_k)
             # refinement around the best plane found so far
             pk = _hash32(key ^ _hash32(y * width + x))
             rx, ry, rz = _ray(kinv, x, y)
