@@ -43,6 +43,8 @@ def test_bench_runs_a_tiny_scene_end_to_end(tmp_path, capsys):
     assert 0.0 <= row["pose_auc@5"] <= 1.0 and 0.0 < row["depth"]["completeness@0.002"] <= 1.0
     assert 0.0 < row["seen_twice"] <= 1.0
     assert sum(g["share"] for g in row["fused_by_views"].values()) == pytest.approx(1.0)
+    fused = row["fused"]  # its F-score is the harmonic mean of its accuracy and completeness
+    assert fused["F@0.002"] == pytest.approx(2 / (1 / fused["accuracy@0.002"] + 1 / fused["completeness@0.002"]))
     assert "turntable_black" in capsys.readouterr().out
 
 
@@ -87,6 +89,7 @@ def test_the_table_prints_maxf_seen2_and_vertex_density_where_they_were_measured
                                                     "fused_by_views": {"2": {"share": 0.25, "completeness": 0.3},
                                                                        "5+": {"share": 0.75, "completeness": 0.99}}},
             _row("b", 0.7, 0.6, 24.0, 23.0, 0.95) | {"holdout_seen_twice": 0.961}]
+    rows[0]["fused"] |= {"accuracy@0.002": 0.998, "completeness@0.002": 0.815}
     quality_bench.print_table(rows, quality_bench.summary(rows))
     lines = capsys.readouterr().out.splitlines()
     assert "maxF" in lines[0] and "seen2" in lines[0] and "vtx/px" in lines[0]
@@ -95,7 +98,7 @@ def test_the_table_prints_maxf_seen2_and_vertex_density_where_they_were_measured
     assert "0.987" in next(line for line in lines if line.startswith("a "))
     assert "0.974" in next(line for line in lines if line.startswith("mean"))
     split = lines[next(i for i, line in enumerate(lines) if "where 1, 2, 3-4 or 5+ input views" in line) + 2]
-    assert split.split() == ["a", "-", "0.250", "/", "0.300", "-", "0.750", "/", "0.990"]
+    assert split.split() == ["a", "0.998", "0.815", "-", "0.250", "/", "0.300", "-", "0.750", "/", "0.990"]
     assert not any(line.startswith("b ") for line in lines[lines.index(split):])  # b has no split
 
 
