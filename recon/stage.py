@@ -13,6 +13,7 @@ import logging
 import os
 import time
 from collections.abc import Callable, Iterable
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
@@ -189,6 +190,12 @@ class StageContext:
             for future in _as_completed(futures):
                 results[futures[future]] = future.result()
                 progress.advance(size(items[futures[future]]))
+        except BrokenProcessPool:
+            progress.close()
+            raise StageError(f"{desc}: a worker process died (out of memory, or a crash in native code; a Python "
+                             "script that calls recon.run must do so under `if __name__ == \"__main__\":`, "
+                             "since each worker imports the script); what is finished is kept: run again to "
+                             "resume") from None
         except BaseException:  # the pipeline stops the executor (Executor.shutdown(abandon=True))
             progress.close()
             raise

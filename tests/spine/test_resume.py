@@ -82,3 +82,27 @@ def test_sigkill_then_rerun_gives_the_same_model(stage, small_scene, sparse_work
     assert not re.search(r"^[IWE]\d{8} ", done.stderr, re.MULTILINE), done.stderr[:500]
     assert list(ws.glob(".recon/logs/*"))
     assert_same_model(ws, sparse_workspace)
+
+
+def test_a_worker_that_dies_stops_the_stage_with_a_one_line_error(tmp_path):
+    """Out of memory, a native crash, or a user's script that calls recon.run unguarded (each worker
+    imports it, runs it again and dies on the locked workspace): the stage names what to do, not the
+    pool's BrokenProcessPool."""
+    import os
+
+    from recon.executor import Executor
+    from recon.stage import StageContext, StageError
+    from recon.workspace import HashCache, Workspace
+
+    ws = Workspace(tmp_path / "ws")
+    executor = Executor("processes:2")
+    ctx = StageContext(name="demo", out=tmp_path, workspace=ws, images=None, seed=0, executor=executor,
+                       base=tmp_path, hashes=HashCache(ws))
+    try:
+        with pytest.raises(StageError) as error:
+            ctx.map(os._exit, [1, 1], desc="demo work")  # each worker exits at once
+    finally:
+        executor.shutdown(abandon=True)
+    message = str(error.value)
+    assert message.startswith("demo work: a worker process died") and "\n" not in message
+    assert 'if __name__ == "__main__":' in message and "run again to resume" in message
