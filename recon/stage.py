@@ -190,14 +190,13 @@ class StageContext:
             for future in _as_completed(futures):
                 results[futures[future]] = future.result()
                 progress.advance(size(items[futures[future]]))
-        except BrokenProcessPool:
+        except BaseException as exc:  # the pipeline stops the executor (Executor.shutdown(abandon=True))
             progress.close()
-            raise StageError(f"{desc}: a worker process died (out of memory, or a crash in native code; a Python "
-                             "script that calls recon.run must do so under `if __name__ == \"__main__\":`, "
-                             "since each worker imports the script); what is finished is kept: run again to "
-                             "resume") from None
-        except BaseException:  # the pipeline stops the executor (Executor.shutdown(abandon=True))
-            progress.close()
+            if isinstance(exc, BrokenProcessPool):
+                raise StageError(f"{desc}: a worker process died (out of memory, or a crash in native code; a "
+                                 "Python script that calls recon.run must do so under `if __name__ == "
+                                 "\"__main__\":`, since each worker imports the script); what is finished is "
+                                 "kept: run again to resume") from None
             raise
         return results
 

@@ -1,7 +1,9 @@
-"""A run killed with SIGKILL mid-stage resumes where it stopped and gives the same model."""
+"""A run killed with SIGKILL mid-stage resumes where it stopped and gives the same model; a worker that dies
+stops the stage with a one-line error, keeping what is finished."""
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import subprocess
@@ -12,6 +14,10 @@ from pathlib import Path
 import numpy as np
 import pycolmap
 import pytest
+
+from recon.executor import Executor
+from recon.stage import StageContext, StageError
+from recon.workspace import HashCache, Workspace
 
 REPO = Path(__file__).resolve().parents[2]
 SPARSE = REPO / "tests" / "sparse_test.yaml"
@@ -88,12 +94,6 @@ def test_a_worker_that_dies_stops_the_stage_with_a_one_line_error(tmp_path):
     """Out of memory, a native crash, or a user's script that calls recon.run unguarded (each worker
     imports it, runs it again and dies on the locked workspace): the stage names what to do, not the
     pool's BrokenProcessPool."""
-    import os
-
-    from recon.executor import Executor
-    from recon.stage import StageContext, StageError
-    from recon.workspace import HashCache, Workspace
-
     ws = Workspace(tmp_path / "ws")
     executor = Executor("processes:2")
     ctx = StageContext(name="demo", out=tmp_path, workspace=ws, images=None, seed=0, executor=executor,
