@@ -56,6 +56,14 @@ def render_rays(mesh: trimesh.Trimesh | TexturedMesh, origins: np.ndarray, direc
     return image, mask
 
 
+def first_hits(mesh: trimesh.Trimesh | TexturedMesh, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """Per ray (origins and directions H, W, 3), where the mesh's first hit lies along it, in units of the
+    direction's length (inf on a miss): with camera-frame directions of z = 1, the depth the mesh shows
+    at each pixel."""
+    vertices, faces, *_ = _as_arrays(mesh)
+    return cast(scene_of(vertices, faces), origins, directions)["t"]
+
+
 def masked_psnr(rendered: np.ndarray, gt_image: np.ndarray, mask: np.ndarray) -> float:
     """PSNR (dB, peak 255) over the pixels where ``mask`` is set."""
     diff = np.asarray(rendered, np.float64)[mask] - np.asarray(gt_image, np.float64)[mask]

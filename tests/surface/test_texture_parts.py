@@ -7,7 +7,7 @@ import numpy as np
 import trimesh
 from PIL import Image
 
-from recon.eval.texture import masked_psnr, seam_jump
+from recon.eval.texture import first_hits, masked_psnr, seam_jump
 from recon.imaging.pixels import sample_bilinear, sample_lanczos
 from recon.surface.texture.atlas import pack
 from recon.surface.texture.model import TexturedMesh
@@ -111,6 +111,18 @@ def _two_chart_square(offset: float) -> TexturedMesh:
         return [(4 + 56 * p[0] + 64 * half) / 128, 1 - (4 + 56 * (1 - p[1])) / 64]
     uv = np.array([[corner(v[i], 0) for i in f[0]], [corner(v[i], 1) for i in f[1]]])
     return TexturedMesh(v, f, uv, tex, np.array([0, 1]), np.zeros((4, 3), np.uint8))
+
+
+def test_first_hits_give_the_depth_of_the_nearest_surface_along_each_ray():
+    """Rays of camera-frame z = 1 from the origin: a square 2 m away over the left half of the grid, one 3 m
+    away behind all of it but the last column; the first hit's distance is the depth of the nearer one."""
+    front = trimesh.Trimesh([[-1, -1, 2], [0, -1, 2], [0, 1, 2], [-1, 1, 2]], [[0, 1, 2], [0, 2, 3]])
+    back = trimesh.Trimesh([[-1, -1, 3], [0.6, -1, 3], [0.6, 1, 3], [-1, 1, 3]], [[0, 1, 2], [0, 2, 3]])
+    both = trimesh.util.concatenate([front, back])
+    x, y = np.meshgrid(np.linspace(-0.45, 0.45, 4) / 2, [0.1, -0.1])  # ray columns at x = -0.225 ... 0.225
+    directions = np.stack([x, y, np.ones_like(x)], axis=-1)
+    t = first_hits(both, np.zeros_like(directions), directions)
+    assert np.allclose(t[:, :2], 2.0) and np.allclose(t[:, 2], 3.0) and np.all(np.isinf(t[:, 3]))
 
 
 def test_seam_jump_measures_the_offset_between_charts():

@@ -31,8 +31,9 @@ def test_unknown_scene_is_refused(capsys):
 
 @pytest.mark.slow
 def test_bench_runs_a_tiny_scene_end_to_end(tmp_path, capsys):
-    # 10 views at 640x480: at 320x240 the black background leaves no pair the 100 inliers sfm starts from
-    assert quality_bench.main(["--scenes", "turntable_black", "--size", "640x480", "--views", "10",
+    # the demo's scene, 10 views at 320x240 (turntable_black, 10 views at 640x480, registers 2: 36 degrees
+    # apart on a black background, its photos share too few features)
+    assert quality_bench.main(["--scenes", "classic", "--size", "320x240", "--views", "10",
                                "--out", str(tmp_path)]) == 0
     out = json.loads((tmp_path / "quality.json").read_text())
     row = out["scenes"][0]
@@ -40,12 +41,13 @@ def test_bench_runs_a_tiny_scene_end_to_end(tmp_path, capsys):
     assert row["registered"] >= 8 and 0.0 < row["fused"]["F@0.005"] <= 1.0 and 0.0 < row["coverage"] <= 1.0
     assert row["psnr"] > 10 and {"mvs", "texture"} <= set(row["seconds"])
     assert row["placed"] >= 1 and row["psnr_placed"] > 10
+    assert 0.0 < row["true_shape"] <= 1.0 and row["psnr_true_shape"] > 10 and row["psnr_vertex_colours_true_shape"] > 10
     assert 0.0 <= row["pose_auc@5"] <= 1.0 and 0.0 < row["depth"]["completeness@0.002"] <= 1.0
     assert 0.0 < row["seen_twice"] <= 1.0
     assert sum(g["share"] for g in row["fused_by_views"].values()) == pytest.approx(1.0)
     fused = row["fused"]  # its F-score is the harmonic mean of its accuracy and completeness
     assert fused["F@0.002"] == pytest.approx(2 / (1 / fused["accuracy@0.002"] + 1 / fused["completeness@0.002"]))
-    assert "turntable_black" in capsys.readouterr().out
+    assert "classic" in capsys.readouterr().out
 
 
 def test_a_rendering_of_an_earlier_scene_definition_is_rendered_again(tmp_path):
@@ -90,6 +92,7 @@ def test_the_table_prints_maxf_seen2_and_vertex_density_where_they_were_measured
                                                                        "5+": {"share": 0.75, "completeness": 0.99}}},
             _row("b", 0.7, 0.6, 24.0, 23.0, 0.95) | {"holdout_seen_twice": 0.961}]
     rows[0]["fused"] |= {"accuracy@0.002": 0.998, "completeness@0.002": 0.815}
+    rows[0] |= {"true_shape": 0.914, "psnr_true_shape": 35.39, "psnr_vertex_colours_true_shape": 34.33}
     quality_bench.print_table(rows, quality_bench.summary(rows))
     lines = capsys.readouterr().out.splitlines()
     assert "maxF" in lines[0] and "seen2" in lines[0] and "vtx/px" in lines[0]
@@ -100,6 +103,11 @@ def test_the_table_prints_maxf_seen2_and_vertex_density_where_they_were_measured
     split = lines[next(i for i, line in enumerate(lines) if "where 1, 2, 3-4 or 5+ input views" in line) + 2]
     assert split.split() == ["a", "0.998", "0.815", "-", "0.250", "/", "0.300", "-", "0.750", "/", "0.990"]
     assert not any(line.startswith("b ") for line in lines[lines.index(split):])  # b has no split
+    shape = lines[next(i for i, line in enumerate(lines) if "lies within 0.2 % of the true surface:" in line) + 2]
+    assert shape.split() == ["a", "0.914", "35.39", "34.33", "+1.06"]
+    assert lines[-1] == shape  # b was not measured there
+    gain = next(line for line in lines if "where the mesh lies within 0.2 % of the surface" in line)
+    assert gain.endswith("mean +1.06 dB, worst +1.06 dB")
 
 
 def test_compare_prints_both_runs_and_counts_moves_beyond_the_seed(tmp_path, capsys):
