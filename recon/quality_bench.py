@@ -100,8 +100,9 @@ def scene_for(name: str, root: Path, width: int, height: int, views: int | None)
 
 def holdout_texture(ws: Path, scene) -> dict:
     """Masked PSNR of the textured and the vertex-coloured mesh and the texture's coverage, averaged over
-    the scene's held-out views at their true poses, and the PSNRs with the views placed in the model
-    (:func:`placed_holdout`; module doc)."""
+    the scene's held-out views at their true poses; both PSNRs again over the pixels where the textured
+    mesh lies within 0.2 % of the extent of the true depth, and those pixels' share of the surface
+    (``true_shape``); and the PSNRs with the views placed in the model (:func:`placed_holdout`; module doc)."""
     import trimesh
     from PIL import Image
 
