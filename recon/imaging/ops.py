@@ -13,7 +13,7 @@ import numpy as np
 
 from recon.imaging.contrast import CLAHE, EQUALIZE, ClaheOptions
 from recon.imaging.deblur import RICHARDSON_LUCY, WIENER
-from recon.imaging.denoise import BILATERAL, NL_MEANS, BilateralOptions
+from recon.imaging.denoise import BILATERAL, NL_MEANS
 from recon.imaging.intrinsics import Intrinsics
 from recon.imaging.operation import Operation
 from recon.imaging.pixels import check_image
@@ -25,11 +25,11 @@ OPS: dict[str, Operation] = {op.name: op for op in (
 
 Step = tuple[str, Any]  # (operation name, an instance of that operation's Options)
 
-# Dark, noisy photos (low light, high ISO): remove noise-sized differences first, or CLAHE
-# amplifies them into spurious features; then lift local contrast. The bilateral filter (range
-# sigma from the measured noise) keeps more matchable detail than non-local means, which on the
-# synthetic dark photos of tests/imaging cost SIFT matches compared with CLAHE alone.
-LOW_LIGHT: tuple[Step, ...] = (("bilateral", BilateralOptions()), ("clahe", ClaheOptions(clip_limit=3.0)))
+# Dark photos (low light, high ISO): lift local contrast. Denoising first (bilateral, range sigma from
+# the measured noise) gave more correct SIFT matches on one synthetic photo 4 stops under, but worse
+# poses on darkened real sets: temple_ring AUC@5 81.0 against 90.2 for CLAHE alone (noise 1.5 levels),
+# 78.7 against 80.1 (noise 4); fountain_p11 99.0 both (docs/DECISIONS.md).
+LOW_LIGHT: tuple[Step, ...] = (("clahe", ClaheOptions(clip_limit=3.0)),)
 
 
 def operation(name: str) -> Operation:

@@ -29,10 +29,13 @@ QUICK = ["executor=serial", "sfm.deterministic=true", f"undistort.max_image_size
 LEAN_MAP_BYTES = 4 + 12 + 4 + 6  # per working pixel: final depth and normal; photometric depth and normals in the store
 KEPT_OUTPUT_BYTES = 2 * (4 + 12)  # per working pixel, in mvs's output: final and photometric depth and normal
 HEADER = 128  # per map file, at most (COLMAP's "width&height&channels&", NumPy's .npy header)
-# 3 MiB: SIFT at 800 px in two databases and the item store, sparse model, two fused clouds (the delivered one and
-# the one the mesh stage meshes), mesh, texture, report. 16 views at 240 px (session 22): 46 MB, of which
-# features 18, matching 7, report 6.3, fusion 4.5, texture 4.2
-OTHER_BYTES_PER_VIEW = 3 << 20
+# 3.5 MiB: SIFT at 800 px in two databases and the item store, sparse model, two fused clouds (the delivered one and
+# the one the mesh stage meshes), mesh, texture, report. 16 views at 240 px: 46 MB at session 22 (features 18,
+# matching 7, report 6.3, fusion 4.5, texture 4.2); 69 MB at session 46, 3.04 MiB a view besides the maps (maps 18,
+# features 18, fusion 9.0: the delivered cloud 6.4 with 236,000 points from 691,000 pixels since fusion merges
+# only within merge_px, the mesh's cloud 2.6; matching 7.3, report 6.4, texture 4.4). Keeping the photometric
+# maps adds 11 MB, over the budget
+OTHER_BYTES_PER_VIEW = 7 * (1 << 20) // 2
 MAPS = ("depth_maps", "normal_maps")
 
 

@@ -1,4 +1,7 @@
-"""Criterion 4: on a darkened, low-contrast, noisy temple_ring, the low-light pipeline beats the plain one."""
+"""Criterion 4: on a darkened, low-contrast, noisy temple_ring, the low-light pipeline beats the plain one.
+
+Since session 46 the plain pipeline registers all 47 darkened photos too (AUC@5 88.6), so the low-light
+one must register as many and place them better (90.2; denoising before CLAHE gave 81.0)."""
 
 from __future__ import annotations
 
@@ -25,7 +28,7 @@ def test_low_light_copy_is_dark_low_contrast_and_noisy():
 
 
 @pytest.mark.slow
-def test_low_light_pipeline_registers_more_and_better(datasets, tmp_path):
+def test_low_light_pipeline_registers_as_many_and_better(datasets, tmp_path):
     root = datasets / "temple_ring"
     if not root.is_dir():
         pytest.skip(f"{root} absent")
@@ -41,5 +44,5 @@ def test_low_light_pipeline_registers_more_and_better(datasets, tmp_path):
     plain, enhanced = figures["sparse"], figures["lowlight"]
     print("darkened temple_ring (registered, AUC@5): " +
           ", ".join(f"{k} {v['registered']}/{v['total']} {v['auc@5']:.1f}" for k, v in figures.items()))
-    assert enhanced["registered"] > plain["registered"]
+    assert enhanced["registered"] >= plain["registered"]
     assert enhanced["auc@5"] > plain["auc@5"]
