@@ -28,7 +28,7 @@ Step = tuple[str, Any]  # (operation name, an instance of that operation's Optio
 # Dark photos (low light, high ISO): lift local contrast. Denoising first (bilateral, range sigma from
 # the measured noise) gave more correct SIFT matches on one synthetic photo 4 stops under, but worse
 # poses on darkened real sets: temple_ring AUC@5 81.0 against 90.2 for CLAHE alone (noise 1.5 levels),
-# 78.7 against 80.1 (noise 4); fountain_p11 99.0 both (docs/DECISIONS.md).
+# 78.7 against 80.1 (noise 4); fountain_p11 99.0 with either (docs/DECISIONS.md).
 LOW_LIGHT: tuple[Step, ...] = (("clahe", ClaheOptions(clip_limit=3.0)),)
 
 
