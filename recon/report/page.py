@@ -318,14 +318,21 @@ def _markers_table(record: dict) -> str:
 
 
 def _mapper_note(registration: dict) -> str:
-    """Which mapper made the model and why (the sfm fallback), and the warning of a model that leaves
-    out more than a quarter of the photos."""
+    """Which mapper made the model and why (the sfm fallback) and the verified pairs it left out as
+    false; the warnings of a model that leaves out more than a quarter of the photos and of one whose
+    photos are tied together by few points."""
     out = ""
     if registration.get("warning"):
         out += f'<p class="bad" id="sfm-warning">{_e(registration["warning"])}</p>'
+    loose = registration.get("weak_joins", {}).get("warning")
+    if loose:
+        out += f'<p class="bad" id="weak-joins">{_e(loose[0].upper() + loose[1:])}.</p>'
     mapper = registration.get("mapper")
     if mapper:
         out += f'<p id="mapper">Made by the {_e(mapper["used"])} mapper: {_e(mapper["why"])}.</p>'
+        if mapper.get("false_pairs"):
+            out += (f'<p id="false-pairs">Verified pairs its first model contradicted, left out as false matches '
+                    f'before mapping again: {_e(", ".join(mapper["false_pairs"]))}.</p>')
     return out
 
 

@@ -80,6 +80,27 @@ def contradicted(rec, database: Path) -> dict[int, str]:
     return out
 
 
+def pair_agreement(rec, database: Path, min_inliers: int) -> dict[int, tuple[int, float]]:
+    """Pair id -> (inliers, the share of them that agree with the model: :func:`agreement`) for every
+    verified pair of ``rec``'s registered perspective photos with at least ``min_inliers`` inliers."""
+    import pycolmap
+
+    registered = {image_id for image_id in rec.reg_image_ids()
+                  if rec.camera(rec.image(image_id).camera_id).is_perspective_pinhole()}
+    out = {}
+    with read_only(database) as db:
+        keypoints = {image_id: read_keypoints(db, image_id)[:, :2].astype(np.float64) for image_id in registered}
+        for pair_id, inliers in db.execute("SELECT pair_id, rows FROM two_view_geometries WHERE rows >= ?",
+                                           (min_inliers,)).fetchall():
+            a, b = pycolmap.pair_id_to_image_pair(pair_id)
+            if a in registered and b in registered:
+                matches = read_inlier_matches(db, pair_id)
+                share = agreement(rec, a, b, keypoints[a][matches[:, 0]], keypoints[b][matches[:, 1]])
+                if share is not None:
+                    out[pair_id] = (inliers, share)
+    return out
+
+
 def agreement(rec, a: int, b: int, pixels_a: np.ndarray, pixels_b: np.ndarray) -> float | None:
     """The share of the inlier matches of images ``a`` and ``b`` (their pixels: M x 2 each, row for row)
     within :data:`MAX_EPIPOLAR_PX` of the epipolar geometry of their poses in ``rec``; None where the two

@@ -38,6 +38,7 @@ from recon.sparse.control import ControlError, ScaleBar
 from recon.sparse.frame import level_model
 from recon.sparse.georeference import DEFAULT_GCP_SIGMA
 from recon.sparse.markers import ArucoMarkers, Chessboard
+from recon.sparse.weak_joins import weak_joins
 from recon.stage import Stage, StageContext, StageError, producer, register
 
 
@@ -108,7 +109,7 @@ class SfmConfig:
 @register
 class Sfm(Stage):
     name = "sfm"
-    version = 11
+    version = 12
     Config = SfmConfig
     requires = (PreparedPhotos, FeatureDatabase, MatchDatabase)
     produces = SparseModel
@@ -143,9 +144,14 @@ class Sfm(Stage):
         report["mapping"] = ({"continued_from": previous_key[:16], "previous_photos": start.num_reg_images()}
                              if start is not None else "from scratch")
         report["mapper"] = {"used": made.mapper, "why": made.why, "attempts": [asdict(a) for a in made.attempts]}
+        if made.false_pairs:
+            report["mapper"]["false_pairs"] = made.false_pairs
         left_out = mapping.left_out_warning(models[0].num_reg_images(), report["total_images"], made)
         if left_out:
             report["warning"] = left_out
+        joins = weak_joins(models[0], cfg.abs_pose_min_num_inliers)
+        loose = joins.warning()
+        report["weak_joins"] = joins.to_json() | ({"warning": loose} if loose else {})
         for k, rec in enumerate(models):
             path = ctx.output.model(k)
             path.mkdir(parents=True, exist_ok=True)
@@ -164,6 +170,8 @@ class Sfm(Stage):
                 ctx.log.warning("sfm: %s", why)
         if left_out:
             ctx.log.warning("sfm: %s", left_out)
+        if loose:
+            ctx.log.warning("sfm: %s", loose)
         return {"models": len(models), "registered": best.num_reg_images(), "images": total,
                 "points": best.num_points3D(), "mean_reproj_error": round(best.compute_mean_reprojection_error(), 3),
                 "georeferenced": georef["georeferenced"], "mapper": made.mapper, "mapper_why": made.why,

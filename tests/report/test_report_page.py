@@ -299,3 +299,16 @@ def test_evaluation_shows_the_fused_clouds_reprojection():
     table = re.search(r'<div id="fused-reprojection">(.*?)</div>', page, re.S)[1]
     for text in ("0.43 px", "1.23 px", "12345", "678"):
         assert text in table
+
+
+def test_sfm_note_shows_weak_joins_and_the_false_pairs_left_out():
+    """models.json's weak-joins warning and the global mapper's false pairs reach the page, escaped."""
+    from recon.report.page import _mapper_note
+
+    registration = {"mapper": {"used": "global", "why": "the incremental mapper's largest model holds 9 of 29 photos",
+                               "false_pairs": ["view_009.jpg / view_025.jpg (16 inliers, 6% agree)"]},
+                    "weak_joins": {"warning": "the model's photos fall into 2 groups <b>"}}
+    note = _mapper_note(registration)
+    assert '<p class="bad" id="weak-joins">The model&#x27;s photos fall into 2 groups &lt;b&gt;.</p>' in note
+    assert 'id="false-pairs"' in note and "view_009.jpg / view_025.jpg (16 inliers, 6% agree)" in note
+    assert "weak-joins" not in _mapper_note({"weak_joins": {"min_points": 30, "groups": [["a.jpg"]], "joins": []}})

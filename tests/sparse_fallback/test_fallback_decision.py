@@ -72,7 +72,7 @@ def fake_mappers(monkeypatch, tmp_path):
     made = {"incremental": [_Model(9), _Model(8), _Model(6), _Model(6)], "global": [_Model(29)]}
     calls = []
 
-    def fake_map(mapper, database, images, cfg, seed, start=None, taken_out=None):
+    def fake_map(mapper, database, images, cfg, seed, start=None, taken_out=None, false_pairs=None):
         calls.append(mapper)
         return made[mapper]
 
@@ -97,3 +97,90 @@ def test_reconstruct_runs_the_fallback_only_where_asked(fake_mappers, mapper, fa
     if not fallback:
         assert result.why == ("sfm.mapper is incremental (the incremental mapper's largest model holds 9 of 29 "
                               "photos, the rest split into 3 more; sfm.mapper_fallback is off)")
+
+
+class _Mapped:
+    """A global mapper's model as _global_mapping sees it: registered photos, and per verified pair the
+    share of its inliers that agree with it."""
+
+    def __init__(self, photos: int, agreement: dict[int, tuple[int, float]]):
+        self.photos, self.agreement = photos, agreement
+
+    def num_reg_images(self):
+        return self.photos
+
+    def reg_image_ids(self):
+        return range(1, self.photos + 1)
+
+    def image(self, image_id):
+        return SimpleNamespace(name=f"view_{image_id:03d}.jpg")
+
+
+def test_the_global_mapper_maps_again_without_the_false_pairs_its_model_contradicts(monkeypatch, tmp_path):
+    """The walk's case: a corner pair (24 inliers) and two false pairs (16, 15) contradicted by a bent
+    model; without all three a facade is lost, with the corner pair put back the model is right."""
+    import sqlite3
+
+    import pycolmap
+
+    import recon.sparse.mapping as mapping
+
+    corner, false_a, false_b, sound = (pycolmap.image_pair_to_pair_id(a, b) for a, b in
+                                       ((6, 7), (9, 25), (8, 23), (1, 2)))
+    database = tmp_path / "database.db"
+    with sqlite3.connect(database) as db:
+        db.execute("CREATE TABLE two_view_geometries (pair_id INTEGER)")
+        db.executemany("INSERT INTO two_view_geometries VALUES (?)", [(p,) for p in (corner, false_a, false_b, sound)])
+    bent = _Mapped(29, {corner: (24, 0.04), false_a: (16, 0.06), false_b: (15, 0.13), sound: (500, 1.0)})
+    right = _Mapped(29, {corner: (24, 0.9), false_a: (16, 0.0), false_b: (15, 0.0), sound: (500, 1.0)})
+    runs = []
+
+    def global_mapping(path, images, out, opts):
+        with sqlite3.connect(path) as db:
+            given = {p for p, in db.execute("SELECT pair_id FROM two_view_geometries")}
+        runs.append(given)
+        if {false_a, false_b} & given:
+            return {0: bent}
+        return {0: right} if corner in given else {0: _Mapped(23, {})}
+
+    monkeypatch.setattr(pycolmap, "global_mapping", global_mapping)
+    monkeypatch.setattr(mapping, "pair_agreement", lambda model, db, min_inliers: model.agreement)
+    cfg = SimpleNamespace(min_num_matches=15, min_model_size=3, multiple_models=True, deterministic=False)
+    false_pairs = []
+    with mapping.private_copy(database) as copy:
+        models = mapping._global_mapping(database, copy, tmp_path, str(tmp_path), cfg, 0, false_pairs)
+    assert models[0] is right
+    assert runs[1] == {sound} and runs[2] == {sound, corner}  # all three left out, then the strongest put back
+    assert len(runs) == 3  # the third run agrees with every pair it was given: no more runs
+    assert false_pairs == ["view_009.jpg / view_025.jpg (16 inliers, 6% agree)",
+                           "view_008.jpg / view_023.jpg (15 inliers, 13% agree)"]
+
+
+def test_a_model_that_only_false_pairs_contradict_is_kept(monkeypatch, tmp_path):
+    """Mapped again without a false pair the model is the same: it still contradicts that pair, so the
+    first is kept and nothing is listed."""
+    import sqlite3
+
+    import pycolmap
+
+    import recon.sparse.mapping as mapping
+
+    false, sound = pycolmap.image_pair_to_pair_id(3, 12), pycolmap.image_pair_to_pair_id(1, 2)
+    database = tmp_path / "database.db"
+    with sqlite3.connect(database) as db:
+        db.execute("CREATE TABLE two_view_geometries (pair_id INTEGER)")
+        db.executemany("INSERT INTO two_view_geometries VALUES (?)", [(false,), (sound,)])
+    first = _Mapped(16, {false: (17, 0.0), sound: (400, 1.0)})
+    runs = []
+
+    def global_mapping(path, images, out, opts):
+        runs.append(path)
+        return {0: first if len(runs) == 1 else _Mapped(16, dict(first.agreement))}
+
+    monkeypatch.setattr(pycolmap, "global_mapping", global_mapping)
+    monkeypatch.setattr(mapping, "pair_agreement", lambda model, db, min_inliers: model.agreement)
+    cfg = SimpleNamespace(min_num_matches=15, min_model_size=3, multiple_models=True, deterministic=False)
+    false_pairs = []
+    with mapping.private_copy(database) as copy:
+        models = mapping._global_mapping(database, copy, tmp_path, str(tmp_path), cfg, 0, false_pairs)
+    assert models[0] is first and len(runs) == 2 and false_pairs == []
