@@ -72,7 +72,7 @@ class _Fit:
 
 
 def georeference(models: list, gps: dict[str, dict], *, sigma: float = 0.0, seed: int = 0,
-                 prior: str | None = "off", ba_options=None) -> dict:
+                 prior: str | None = "off", ba_options=None, groups: int = 1) -> dict:
     """Transform ``models`` (pycolmap Reconstructions, largest first) in place into the local ENU frame,
     each that its photos' GPS positions ``gps`` (name -> gps record) fix; returns georeference.json.
 
@@ -80,7 +80,9 @@ def georeference(models: list, gps: dict[str, dict], *, sigma: float = 0.0, seed
     only then, into the same frame. ``sigma`` > 0 replaces every photo's GPS accuracy (metres).
     ``prior`` (auto / on / off; None: a continued model, whose photos keep their poses) says whether
     the first model is then bundle-adjusted with its inlier photos' GPS positions as priors
-    (:mod:`recon.sparse.gps_prior`), with ``ba_options`` (pycolmap BundleAdjustmentOptions).
+    (:mod:`recon.sparse.gps_prior`), with ``ba_options`` (pycolmap BundleAdjustmentOptions); ``groups``:
+    the first model's groups of photos tied by few points (:mod:`recon.sparse.weak_joins`), which
+    ``auto`` weighs.
     Keys: ``georeferenced`` and ``reason`` (why not), ``crs``, ``origin`` (lat, lon, alt),
     ``altitude``, ``model_to_enu`` (scale, rotation, translation), ``gps_prior`` (used, why, and
     the reprojection error before and after), ``residuals_m`` (median, p90 of the inliers),
@@ -104,7 +106,7 @@ def georeference(models: list, gps: dict[str, dict], *, sigma: float = 0.0, seed
         return {"georeferenced": False, "reason": f"GPS cannot place the model: {exc}"}
     _transform(main, fit.alignment.similarity)
     placed = fit.alignment.similarity
-    adjusted = _gps_prior(main, fit, prior, ba_options)
+    adjusted = _gps_prior(main, fit, prior, ba_options, groups)
     if adjusted["used"]:  # the residuals after the adjustment, and the little move they still ask
         fit = _align(main, gps, origin, sigma, seed)
         _transform(main, fit.alignment.similarity)
@@ -143,14 +145,14 @@ def _align(model, gps: dict[str, dict], origin, sigma: float, seed: int) -> _Fit
     return _Fit(names, enu, alignment)
 
 
-def _gps_prior(model, fit: _Fit, mode: str | None, ba_options) -> dict:
+def _gps_prior(model, fit: _Fit, mode: str | None, ba_options, groups: int) -> dict:
     """Bundle-adjust ``model`` with its inlier photos' GPS positions as priors when ``mode`` asks for it
     (:func:`recon.sparse.gps_prior.decide`); what was done."""
     if mode is None:
         return {"used": False, "why": "a continued model keeps its photos' poses"}
     inliers = fit.alignment.inliers
     sigmas = fit.alignment.thresholds[inliers] / CHI3_99
-    used, why = gps_prior.decide(mode, sigmas)
+    used, why = gps_prior.decide(mode, sigmas, groups)
     record = {"used": used, "why": why}
     if used:
         names = [name for name, ok in zip(fit.names, inliers, strict=True) if ok]
@@ -199,9 +201,9 @@ def _georeference_other(model, gps, origin, sigma: float, seed: int) -> dict:
 def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed: int = 0,
           gcps: GcpList | None = None, gcp_sigma: float = DEFAULT_GCP_SIGMA,
           scale_bars: Sequence[ScaleBar] = (), markers: Sequence[Found] = (), prior: str | None = "off",
-          ba_options=None, crs: str = "enu") -> dict:
+          ba_options=None, crs: str = "enu", groups: int = 1) -> dict:
     """Put ``models`` (largest first) in metres, in place, from what the user has: the photos' GPS
-    (``gps``; None: not used; ``prior``, ``ba_options``: :func:`georeference`), ground control points
+    (``gps``; None: not used; ``prior``, ``ba_options``, ``groups``: :func:`georeference`), ground control points
     (``gcps``, the first model), scale bars (the first model); returns georeference.json, whose ``scale_source`` says which fixed the scale
     ("GCP", "scale bar", "GPS" or "none").
 
@@ -231,7 +233,7 @@ def place(models: list, gps: dict[str, dict] | None, *, sigma: float = 0.0, seed
     elif not gps:
         result = {"georeferenced": False, "reason": "no photo has a GPS position with altitude in its EXIF"}
     else:
-        result = georeference(models, gps, sigma=sigma, seed=seed, prior=prior, ba_options=ba_options)
+        result = georeference(models, gps, sigma=sigma, seed=seed, prior=prior, ba_options=ba_options, groups=groups)
     result["scale_source"] = "GPS" if result["georeferenced"] else "none"
     if models and gcps is not None:
         _apply_gcps(models[0], result, gcps, gcp_sigma)

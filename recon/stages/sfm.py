@@ -98,8 +98,9 @@ class SfmConfig:
     gps_prior: Literal["auto", "on", "off"] = opt(
         "auto", "a last bundle adjustment with the GPS positions as priors (georeferenced models): auto = when the "
                 "photos' GPS accuracy is 0.5 m or better (RTK / PPK; sfm.gps_sigma, else their tags), where it "
-                "straightens the bowl a nadir block bends into; coarser GPS bends it further (measured: "
-                "recon.sparse.gps_prior)")
+                "straightens the bowl a nadir block bends into; coarser GPS bends it further, so auto uses that only "
+                "where the model's photos fall into groups tied by few points, which GPS places against each "
+                "other (measured: recon.sparse.gps_prior)")
     continue_from_previous: bool = opt(
         True, "incremental mapper: when photos were added, continue the workspace's previous model (same sfm "
               "options, all its photos still there with the same features; their poses kept fixed) and keep its "
@@ -139,7 +140,9 @@ class Sfm(Stage):
             tried = f": {made.why}" if len(made.attempts) > 1 else ""  # the global mapper's model refused, or none
             raise StageError(f"sfm: no model could be built{tried}. {report['reason']}")
         kept = _keep_frame(ctx, models, previous) if start is not None else None
-        georef = _georeference(ctx, cfg, models, listing["images"], images, continued=start is not None)
+        joins = weak_joins(models[0], cfg.abs_pose_min_num_inliers)
+        georef = _georeference(ctx, cfg, models, listing["images"], images, continued=start is not None,
+                               groups=len(joins.groups))
         report["frame"] = _level(models, georef, kept)
         report["mapping"] = ({"continued_from": previous_key[:16], "previous_photos": start.num_reg_images()}
                              if start is not None else "from scratch")
@@ -149,7 +152,6 @@ class Sfm(Stage):
         left_out = mapping.left_out_warning(models[0].num_reg_images(), report["total_images"], made)
         if left_out:
             report["warning"] = left_out
-        joins = weak_joins(models[0], cfg.abs_pose_min_num_inliers)
         loose = joins.warning()
         report["weak_joins"] = joins.to_json() | ({"warning": loose} if loose else {})
         for k, rec in enumerate(models):
@@ -255,10 +257,11 @@ def _gcp_file(ctx: StageContext, cfg: SfmConfig) -> Path | None:
 
 
 def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[dict], pictures: Path,
-                  continued: bool) -> dict:
+                  continued: bool, groups: int) -> dict:
     """Put the models in metres in place (GPS: sfm.georeference, sfm.gps_prior unless the model was
-    ``continued``; sfm.gcp_file; sfm.scale_bars; sfm.aruco and sfm.chessboard, searched for in the
-    registered photos of the first model, under ``pictures``) and log what was done; georeference.json."""
+    ``continued``, weighing the first model's ``groups`` of photos tied by few points; sfm.gcp_file;
+    sfm.scale_bars; sfm.aruco and sfm.chessboard, searched for in the registered photos of the first
+    model, under ``pictures``) and log what was done; georeference.json."""
     gps = georeference.gps_positions(images) if cfg.georeference == "auto" else None
     path = _gcp_file(ctx, cfg)
     found = [_search(ctx, models[0], pictures, target) for target in (cfg.aruco, cfg.chessboard) if target.enabled]
@@ -267,7 +270,8 @@ def _georeference(ctx: StageContext, cfg: SfmConfig, models: list, images: list[
         result = georeference.place(models, gps, sigma=cfg.gps_sigma, seed=ctx.seed, gcps=gcps,
                                     gcp_sigma=cfg.gcp_sigma, scale_bars=cfg.scale_bars, markers=found,
                                     prior=None if continued else cfg.gps_prior,
-                                    ba_options=mapping.ba_options(cfg, principal_point=False), crs=cfg.crs)
+                                    ba_options=mapping.ba_options(cfg, principal_point=False), crs=cfg.crs,
+                                    groups=groups)
     except GcpFileError as exc:
         raise StageError(f"sfm.gcp_file: {exc}") from None
     except ControlError as exc:  # it names the option at fault

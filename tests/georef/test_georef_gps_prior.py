@@ -27,6 +27,13 @@ def test_auto_uses_accurate_gps_only():
     assert decide("off", np.full(10, RTK_SIGMA)) == (False, "sfm.gps_prior is off")
 
 
+def test_auto_uses_coarse_gps_where_the_photos_fall_into_loosely_tied_groups():
+    used, why = decide("auto", np.full(10, 3.0), groups=4)
+    assert used and why.startswith("the model's photos fall into 4 groups tied to each other by few 3D points")
+    assert not decide("auto", np.full(10, 3.0), groups=1)[0]
+    assert decide("off", np.full(10, 3.0), groups=4) == (False, "sfm.gps_prior is off")
+
+
 def test_rtk_accuracy_is_read_from_dji_xmp():
     xmp = (b'<rdf:Description drone-dji:RtkFlag="50" drone-dji:RtkStdLon="0.011" drone-dji:RtkStdLat="0.014" '
            b'drone-dji:RtkStdHgt="0.025"/>')

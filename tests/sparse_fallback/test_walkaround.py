@@ -60,6 +60,8 @@ def test_default_options_register_the_walk_through_the_global_fallback(walkaroun
 
     georef = json.loads((ws / "georeference.json").read_text())
     assert georef["georeferenced"]
+    # the groups' placement rests on few points: coarse GPS (3 m) is used as a prior to place them
+    assert georef["gps_prior"]["used"] and georef["gps_prior"]["why"].startswith("the model's photos fall into 4 groups")
     origin = (georef["origin"]["lat"], georef["origin"]["lon"], georef["origin"]["alt"])
     truth = {name: cam.center for name, cam in walkaround.cameras().items()}
     errors = [np.linalg.norm(image.projection_center() - enu_from_wgs84(wgs84_from_enu(truth[image.name], ORIGIN),
