@@ -195,12 +195,7 @@ def _global_mapping(database: Path, copy: Path, images: Path, scratch: str, cfg,
     lost; with the corner pair put back, AUC@5 92.8."""
     import pycolmap
 
-    opts = pycolmap.GlobalPipelineOptions()
-    opts.min_num_matches = cfg.min_num_matches
-    opts.min_model_size = cfg.min_model_size
-    opts.multiple_models = cfg.multiple_models
-    opts.random_seed = seed
-    opts.num_threads = _threads(cfg)
+    opts = _common_options(pycolmap.GlobalPipelineOptions(), cfg, seed)
     first = pycolmap.global_mapping(str(copy), str(images), scratch, opts)
     if not first:
         return first
@@ -264,12 +259,7 @@ def left_out_warning(registered: int, photos: int, mapping: Mapping) -> str | No
 def incremental_options(cfg, seed: int):
     import pycolmap
 
-    opts = pycolmap.IncrementalPipelineOptions()
-    opts.min_num_matches = cfg.min_num_matches
-    opts.min_model_size = cfg.min_model_size
-    opts.multiple_models = cfg.multiple_models
-    opts.random_seed = seed
-    opts.num_threads = _threads(cfg)
+    opts = _common_options(pycolmap.IncrementalPipelineOptions(), cfg, seed)
     opts.ba_refine_focal_length = cfg.refine_focal_length
     opts.ba_refine_principal_point = cfg.refine_principal_point
     opts.ba_refine_extra_params = cfg.refine_extra_params
@@ -283,6 +273,16 @@ def incremental_options(cfg, seed: int):
     mapper.random_seed = seed
     mapper.num_threads = _threads(cfg)
     opts.triangulation.random_seed = seed
+    return opts
+
+
+def _common_options(opts, cfg, seed: int):
+    """``opts`` (either mapper's pipeline options) with what both mappers take from ``cfg``."""
+    opts.min_num_matches = cfg.min_num_matches
+    opts.min_model_size = cfg.min_model_size
+    opts.multiple_models = cfg.multiple_models
+    opts.random_seed = seed
+    opts.num_threads = _threads(cfg)
     return opts
 
 

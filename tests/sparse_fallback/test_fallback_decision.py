@@ -116,6 +116,33 @@ class _Mapped:
         return SimpleNamespace(name=f"view_{image_id:03d}.jpg")
 
 
+def _pairs_database(folder, pair_ids):
+    """A database holding only the verified pairs' ids, as the global mapper's stand-in reads them."""
+    import sqlite3
+
+    database = folder / "database.db"
+    with sqlite3.connect(database) as db:
+        db.execute("CREATE TABLE two_view_geometries (pair_id INTEGER)")
+        db.executemany("INSERT INTO two_view_geometries VALUES (?)", [(p,) for p in pair_ids])
+    return database
+
+
+def _global_mapping(monkeypatch, database, global_mapping):
+    """recon.sparse.mapping._global_mapping with ``global_mapping`` for COLMAP's, each model's pair
+    agreement its own; the models and the false pairs described."""
+    import pycolmap
+
+    import recon.sparse.mapping as mapping
+
+    monkeypatch.setattr(pycolmap, "global_mapping", global_mapping)
+    monkeypatch.setattr(mapping, "pair_agreement", lambda model, db, min_inliers: model.agreement)
+    cfg = SimpleNamespace(min_num_matches=15, min_model_size=3, multiple_models=True, deterministic=False)
+    false_pairs = []
+    with mapping.private_copy(database) as copy:
+        models = mapping._global_mapping(database, copy, database.parent, str(database.parent), cfg, 0, false_pairs)
+    return models, false_pairs
+
+
 def test_the_global_mapper_maps_again_without_the_false_pairs_its_model_contradicts(monkeypatch, tmp_path):
     """The walk's case: a corner pair (24 inliers) and two false pairs (16, 15) contradicted by a bent
     model; without all three a facade is lost, with the corner pair put back the model is right."""
@@ -123,14 +150,9 @@ def test_the_global_mapper_maps_again_without_the_false_pairs_its_model_contradi
 
     import pycolmap
 
-    import recon.sparse.mapping as mapping
-
     corner, false_a, false_b, sound = (pycolmap.image_pair_to_pair_id(a, b) for a, b in
                                        ((6, 7), (9, 25), (8, 23), (1, 2)))
-    database = tmp_path / "database.db"
-    with sqlite3.connect(database) as db:
-        db.execute("CREATE TABLE two_view_geometries (pair_id INTEGER)")
-        db.executemany("INSERT INTO two_view_geometries VALUES (?)", [(p,) for p in (corner, false_a, false_b, sound)])
+    database = _pairs_database(tmp_path, [corner, false_a, false_b, sound])
     bent = _Mapped(29, {corner: (24, 0.04), false_a: (16, 0.06), false_b: (15, 0.13), sound: (500, 1.0)})
     right = _Mapped(29, {corner: (24, 0.9), false_a: (16, 0.0), false_b: (15, 0.0), sound: (500, 1.0)})
     runs = []
@@ -143,12 +165,7 @@ def test_the_global_mapper_maps_again_without_the_false_pairs_its_model_contradi
             return {0: bent}
         return {0: right} if corner in given else {0: _Mapped(23, {})}
 
-    monkeypatch.setattr(pycolmap, "global_mapping", global_mapping)
-    monkeypatch.setattr(mapping, "pair_agreement", lambda model, db, min_inliers: model.agreement)
-    cfg = SimpleNamespace(min_num_matches=15, min_model_size=3, multiple_models=True, deterministic=False)
-    false_pairs = []
-    with mapping.private_copy(database) as copy:
-        models = mapping._global_mapping(database, copy, tmp_path, str(tmp_path), cfg, 0, false_pairs)
+    models, false_pairs = _global_mapping(monkeypatch, database, global_mapping)
     assert models[0] is right
     assert runs[1] == {sound} and runs[2] == {sound, corner}  # all three left out, then the strongest put back
     assert len(runs) == 3  # the third run agrees with every pair it was given: no more runs
@@ -159,17 +176,10 @@ def test_the_global_mapper_maps_again_without_the_false_pairs_its_model_contradi
 def test_a_model_that_only_false_pairs_contradict_is_kept(monkeypatch, tmp_path):
     """Mapped again without a false pair the model is the same: it still contradicts that pair, so the
     first is kept and nothing is listed."""
-    import sqlite3
-
     import pycolmap
 
-    import recon.sparse.mapping as mapping
-
     false, sound = pycolmap.image_pair_to_pair_id(3, 12), pycolmap.image_pair_to_pair_id(1, 2)
-    database = tmp_path / "database.db"
-    with sqlite3.connect(database) as db:
-        db.execute("CREATE TABLE two_view_geometries (pair_id INTEGER)")
-        db.executemany("INSERT INTO two_view_geometries VALUES (?)", [(false,), (sound,)])
+    database = _pairs_database(tmp_path, [false, sound])
     first = _Mapped(16, {false: (17, 0.0), sound: (400, 1.0)})
     runs = []
 
@@ -177,10 +187,5 @@ def test_a_model_that_only_false_pairs_contradict_is_kept(monkeypatch, tmp_path)
         runs.append(path)
         return {0: first if len(runs) == 1 else _Mapped(16, dict(first.agreement))}
 
-    monkeypatch.setattr(pycolmap, "global_mapping", global_mapping)
-    monkeypatch.setattr(mapping, "pair_agreement", lambda model, db, min_inliers: model.agreement)
-    cfg = SimpleNamespace(min_num_matches=15, min_model_size=3, multiple_models=True, deterministic=False)
-    false_pairs = []
-    with mapping.private_copy(database) as copy:
-        models = mapping._global_mapping(database, copy, tmp_path, str(tmp_path), cfg, 0, false_pairs)
+    models, false_pairs = _global_mapping(monkeypatch, database, global_mapping)
     assert models[0] is first and len(runs) == 2 and false_pairs == []
