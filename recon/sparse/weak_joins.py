@@ -63,8 +63,9 @@ class WeakJoins:
 
 
 def weak_joins(rec, min_points: int) -> WeakJoins:
-    """The groups of ``rec``'s registered photos (a pycolmap Reconstruction) and their joins."""
-    from scipy.sparse import csr_matrix
+    """The groups of ``rec``'s registered photos (a pycolmap Reconstruction) and their joins. Sparse
+    throughout: photos x photos is too large to hold dense for a survey of thousands of photos."""
+    from scipy.sparse import csr_matrix, triu
     from scipy.sparse.csgraph import connected_components
 
     ids = sorted(rec.reg_image_ids())
@@ -75,31 +76,31 @@ def weak_joins(rec, min_points: int) -> WeakJoins:
         rows += [p] * len(seen)
         cols += seen
     sees = csr_matrix((np.ones(len(rows), np.int32), (rows, cols)), shape=(max(len(rec.points3D), 1), len(ids)))
-    shared = (sees.T @ sees).toarray()  # photos x photos: points both see
-    np.fill_diagonal(shared, 0)
-    _, label = connected_components(csr_matrix(shared >= min_points), directed=False)
+    shared = _off_diagonal(sees.T @ sees)  # photos x photos: points both see
+    _, label = connected_components(shared >= min_points, directed=False)
     while True:
         member = csr_matrix((np.ones(len(ids), np.int32), (np.arange(len(ids)), label)))
-        touches = (sees @ member) > 0  # points x groups
-        between = (touches.T.astype(np.int32) @ touches.astype(np.int32)).toarray()
-        np.fill_diagonal(between, 0)
-        count, merged = connected_components(csr_matrix(between >= min_points), directed=False)
+        touches = (sees @ member).astype(bool).astype(np.int32)  # points x groups
+        between = _off_diagonal(touches.T @ touches)  # groups x groups: points seen from both
+        count, merged = connected_components(between >= min_points, directed=False)
         if count == between.shape[0]:
             break
         label = merged[label]
     names = [rec.image(i).name for i in ids]
-    order = sorted(range(between.shape[0]), key=lambda g: (-int((label == g).sum()), min(
-        names[k] for k in np.flatnonzero(label == g))))
+    members = [np.flatnonzero(label == g) for g in range(between.shape[0])]
+    order = sorted(range(len(members)), key=lambda g: (-len(members[g]), min(names[k] for k in members[g])))
     rank = {g: r for r, g in enumerate(order)}
-    groups = [sorted(names[k] for k in np.flatnonzero(label == g)) for g in order]
     joins = []
-    for a in range(len(order)):
-        for b in range(a + 1, len(order)):
-            n = int(between[order[a], order[b]])
-            if n == 0:
-                continue
-            in_a, in_b = np.flatnonzero(label == order[a]), np.flatnonzero(label == order[b])
-            block = shared[np.ix_(in_a, in_b)]
-            i, j = np.unravel_index(int(np.argmax(block)), block.shape)
-            joins.append(Join((rank[order[a]], rank[order[b]]), n, (names[in_a[i]], names[in_b[j]])))
-    return WeakJoins(min_points, groups, joins)
+    pairs = triu(between, k=1).tocoo()
+    for a, b, n in sorted(zip(pairs.row, pairs.col, pairs.data, strict=True), key=lambda x: (rank[x[0]], rank[x[1]])):
+        block = shared[members[a]][:, members[b]].tocoo()
+        k = int(np.argmax(block.data))
+        joins.append(Join((rank[a], rank[b]), int(n), (names[members[a][block.row[k]]], names[members[b][block.col[k]]])))
+    return WeakJoins(min_points, [sorted(names[k] for k in members[g]) for g in order], joins)
+
+
+def _off_diagonal(matrix):
+    matrix = matrix.tocsr()
+    matrix.setdiag(0)
+    matrix.eliminate_zeros()
+    return matrix
