@@ -29,6 +29,11 @@ class MeshConfig(MeshOptions):
                                  "the face) than agree with, where the mesh lies behind them: surface Poisson put "
                                  "where the views saw none (recon.surface.seen_through). Zoo: mesh F@0.2 % mean "
                                  "+.003, fence_poles .972 -> .980; held-out coverage mean -.001 (docs/DECISIONS.md)")
+    max_faces_per_pixel: float = opt(
+        0.25, "decimate further to at most this many faces per pixel of the surface in the views that show it "
+              "largest (0: off): a vertex every 2 pixels or so, still finer than stereo's matching window resolves; "
+              "binds on objects a few hundred pixels across, where mesh.target_faces left several vertices per "
+              "pixel (recon.surface.resolution; zoo: docs/DECISIONS.md)", ge=0)
     drop_backdrop: bool = opt(True, "drop faces that more views show over the sky or a backdrop (within the matching "
                                     "window's radius of its edge) than measure, where no mesh lies behind them: a "
                                     "surface run on past its edge into the sky (recon.surface.backdrop; the background "
@@ -46,6 +51,20 @@ def _drop_masked(ctx: StageContext, mesh):
         return None
     views = dense.views()
     return drop_masked_faces(mesh, views, {v.name: m for v in views if (m := dense.mask(v.name)) is not None})
+
+
+def _no_finer_than_the_photos(ctx: StageContext, mesh, faces_per_pixel: float):
+    """The mesh decimated to ``faces_per_pixel`` faces per pixel of its surface in the views that show it
+    largest, where it has more (:mod:`recon.surface.resolution`)."""
+    from recon.surface.cleanup import decimate
+    from recon.surface.resolution import resolved_faces
+
+    target = resolved_faces(mesh, ctx.input(DenseScene).views(), faces_per_pixel)
+    if target >= len(mesh.faces):
+        return mesh
+    ctx.log.info("mesh: %d faces for the photos' %d pixels of its surface: decimated to %d (mesh.max_faces_per_pixel "
+                 "%g)", len(mesh.faces), round(target / faces_per_pixel), target, faces_per_pixel)
+    return decimate(mesh, target)
 
 
 def _depth_maps(ctx: StageContext):
@@ -86,7 +105,7 @@ def _fused_cloud(ctx: StageContext):
 @register
 class Mesh(Stage):
     name = "mesh"
-    version = 11
+    version = 12
     Config = MeshConfig
     requires = (DenseScene, DepthMaps, FusedCloud)
     produces = SurfaceMesh
@@ -129,6 +148,8 @@ class Mesh(Stage):
         if masked is not None:
             mesh, dropped = masked
             ctx.log.info("mesh: %d faces over masked pixels dropped", dropped)
+        if len(mesh.faces) and cfg.max_faces_per_pixel:
+            mesh = _no_finer_than_the_photos(ctx, mesh, cfg.max_faces_per_pixel)
         if len(mesh.faces) == 0:
             raise StageError(f"mesh: the {cfg.method} surface is empty after trimming; lower "
                              "mesh.density_quantile, set mesh.drop_unseen: false, or check the fusion stage's cloud")

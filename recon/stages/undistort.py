@@ -40,8 +40,10 @@ class Undistort(Stage):
 
         dense = ctx.output
         model = ctx.input(SparseModel).model()
-        if warning := ctx.input(SparseModel).report().get("warning"):  # repeated before the long dense work
-            ctx.log.warning("undistort: dense work on the largest model: %s", warning)
+        registration = ctx.input(SparseModel).report()
+        for warning in (registration.get("warning"), registration.get("weak_joins", {}).get("warning")):
+            if warning:  # repeated before the long dense work
+                ctx.log.warning("undistort: dense work on the largest model: %s", warning)
         if cubemap.is_spherical(model):  # 360-degree photos: six pinhole faces each (recon.mvs.cubemap)
             return cubemap.write_cubemap_workspace(model, ctx.input(PreparedPhotos).geometric, dense.folder,
                                                    cfg.max_image_size)

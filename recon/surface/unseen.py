@@ -69,9 +69,7 @@ def face_views(vertices: np.ndarray, faces: np.ndarray, views: Iterable[tuple[Vi
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     counts = np.zeros((3, len(faces)), np.int32)
     for view, depth in views:
-        at = points_in_view(scene, view, centres)
-        facing = np.einsum("ij,ij->i", normals, camera_center(view.R, view.t) - centres) > 0
-        seen = at["inside"] & facing & (at["z"] <= at["first"] * (1 + DEPTH_TOLERANCE))
+        at, seen = seen_by(scene, view, centres, normals)
         counts[0] += seen
         if depth is None:
             continue
@@ -85,6 +83,14 @@ def face_views(vertices: np.ndarray, faces: np.ndarray, views: Iterable[tuple[Vi
             sides += (side > 0) & (np.abs(side - at["z"]) <= ENCLOSED_DEPTH * at["z"])
         counts[2] += seen & (sides >= ENCLOSED_SIDES)
     return counts[0], counts[1], counts[2]
+
+
+def seen_by(scene, view, centres: np.ndarray, normals: np.ndarray) -> tuple[dict, np.ndarray]:
+    """Where the faces (their ``centres`` and ``normals``, N x 3; ``scene``: the mesh's ray-casting scene) lie
+    in ``view`` (:func:`recon.surface.raycast.points_in_view`) and which of them it sees (module doc)."""
+    at = points_in_view(scene, view, centres)
+    facing = np.einsum("ij,ij->i", normals, camera_center(view.R, view.t) - centres) > 0
+    return at, at["inside"] & facing & (at["z"] <= at["first"] * (1 + DEPTH_TOLERANCE))
 
 
 def drop_unseen_faces(mesh: trimesh.Trimesh, views: Iterable[tuple[ViewCamera, np.ndarray | None]],

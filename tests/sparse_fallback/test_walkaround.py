@@ -20,6 +20,7 @@ from recon.synth.geotags import ORIGIN
 from recon.synth.zoo import render_zoo
 
 SPARSE_PIPELINE = Path(__file__).resolve().parents[2] / "pipelines" / "sparse.yaml"
+FULL_PIPELINE = SPARSE_PIPELINE.with_name("full.yaml")
 PHOTOS = 29
 
 
@@ -68,6 +69,10 @@ def test_default_options_register_the_walk_through_the_global_fallback(walkaroun
                                                                            origin)[0])
               for image in model.images.values()]
     assert np.median(errors) < 3.0  # GPS sigma 3 m per axis on each of the 29 photos
+
+    recon.run(FULL_PIPELINE, images=str(walkaround.images_dir), workspace=str(ws), until="undistort")
+    log = (ws / ".recon" / "recon.log").read_text()
+    assert "undistort: dense work on the largest model: the model's photos fall into 4 groups" in log  # repeated
 
 
 @pytest.mark.slow
