@@ -148,8 +148,10 @@ class Mesh(Stage):
         if masked is not None:
             mesh, dropped = masked
             ctx.log.info("mesh: %d faces over masked pixels dropped", dropped)
+        finer = len(mesh.faces)
         if len(mesh.faces) and cfg.max_faces_per_pixel:
             mesh = _no_finer_than_the_photos(ctx, mesh, cfg.max_faces_per_pixel)
+        finer -= len(mesh.faces)
         if len(mesh.faces) == 0:
             raise StageError(f"mesh: the {cfg.method} surface is empty after trimming; lower "
                              "mesh.density_quantile, set mesh.drop_unseen: false, or check the fusion stage's cloud")
@@ -159,7 +161,8 @@ class Mesh(Stage):
                 "unmeasured_faces_dropped": unmeasured,
                 "free_space_faces_dropped": carved,
                 "backdrop_faces_dropped": backdrop,
-                "masked_faces_dropped": masked[1] if masked else 0}
+                "masked_faces_dropped": masked[1] if masked else 0,
+                "finer_than_the_photos_faces_dropped": finer}
 
     def _poisson(self, ctx: StageContext, cfg: MeshConfig):
         from recon.surface.poisson import poisson_mesh
