@@ -18,7 +18,7 @@ from recon.sparse.database import (
     read_only,
     stored_camera_params,
 )
-from recon.sparse.pose_check import MIN_AGREEING, pair_agreement, take_out_contradicted
+from recon.sparse.pose_check import MIN_AGREEING, pair_agreement, pair_pixels, take_out_contradicted
 from recon.sparse.residuals import observation_errors
 
 log = logging.getLogger(__name__)
@@ -201,23 +201,24 @@ def _global_mapping(database: Path, copy: Path, images: Path, scratch: str, cfg,
     if not first:
         return first
     largest = _largest(first)
-    checked = pair_agreement(largest, database, cfg.min_num_matches)
-    false = sorted((pair_id for pair_id, (_, share) in checked.items() if share < MIN_AGREEING),
-                   key=lambda pair_id: -checked[pair_id][0])  # strongest first
+    pixels = pair_pixels(largest, database, cfg.min_num_matches)  # read once, judged against each run
+    checked = pair_agreement(largest, pixels)
+    inliers = {p: len(pixels[p][0]) for p in checked}
+    false = sorted((p for p, share in checked.items() if share < MIN_AGREEING), key=lambda p: -inliers[p])  # strongest first
     if not false:
         return first
     names = {i: largest.image(i).name for i in largest.reg_image_ids()}
 
     def described(pair_ids) -> list[str]:
-        return [f"{names[a]} / {names[b]} ({checked[p][0]} inliers, {checked[p][1]:.0%} agree)"
+        return [f"{names[a]} / {names[b]} ({inliers[p]} inliers, {checked[p]:.0%} agree)"
                 for p in pair_ids for a, b in [pycolmap.pair_id_to_image_pair(p)]]
 
     def contradicted_inliers(model) -> int:  # of the first model's checked pairs
-        found = pair_agreement(model, database, cfg.min_num_matches)
-        return sum(n for p, (n, _) in checked.items() if found.get(p, (n, 0.0))[1] < MIN_AGREEING)
+        found = pair_agreement(model, {p: pixels[p] for p in checked})
+        return sum(inliers[p] for p in checked if found.get(p, 0.0) < MIN_AGREEING)
 
     log.info("sfm: the global mapper's model contradicts %d verified pairs: %s", len(false), ", ".join(described(false)))
-    best, best_count, best_left_out = first, sum(checked[p][0] for p in false), []
+    best, best_count, best_left_out = first, sum(inliers[p] for p in false), []
     for put_back in range(min(len(false), MAX_REMAPS)):
         left_out = false[put_back:]
         with private_copy(copy) as without, tempfile.TemporaryDirectory(prefix="recon-sfm-") as out:
@@ -231,7 +232,7 @@ def _global_mapping(database: Path, copy: Path, images: Path, scratch: str, cfg,
                  largest.num_reg_images(), "" if count is None else f", {count} inliers in contradicted pairs")
         if count is not None and count < best_count:
             best, best_count, best_left_out = again, count, left_out
-        if count is not None and count == sum(checked[p][0] for p in left_out):
+        if count is not None and count == sum(inliers[p] for p in left_out):
             break  # every pair it was given agrees with it
     log.info("sfm: %s kept (%d inliers in pairs it contradicts)",
              "the first model" if best is first else f"the model without {len(best_left_out)} pairs", best_count)

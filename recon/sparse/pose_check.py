@@ -46,8 +46,7 @@ def contradicted(rec, database: Path) -> dict[int, str]:
     pairs contradict (module doc)."""
     import pycolmap
 
-    registered = {image_id for image_id in rec.reg_image_ids()
-                  if rec.camera(rec.image(image_id).camera_id).is_perspective_pinhole()}
+    registered = _perspective_registered(rec)
     out = {}
     with read_only(database) as db:
         pairs: dict[int, list[tuple[int, int]]] = {}
@@ -80,25 +79,44 @@ def contradicted(rec, database: Path) -> dict[int, str]:
     return out
 
 
-def pair_agreement(rec, database: Path, min_inliers: int) -> dict[int, tuple[int, float]]:
-    """Pair id -> (inliers, the share of them that agree with the model: :func:`agreement`) for every
-    verified pair of ``rec``'s registered perspective photos with at least ``min_inliers`` inliers."""
+def pair_pixels(rec, database: Path, min_inliers: int) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Pair id -> the pixels of its verified inlier matches (M x 2 each, row for row: the first photo's,
+    the second's) for every verified pair of ``rec``'s registered perspective photos with at least
+    ``min_inliers`` inliers; read once, then judged against any model by :func:`pair_agreement`."""
     import pycolmap
 
-    registered = {image_id for image_id in rec.reg_image_ids()
-                  if rec.camera(rec.image(image_id).camera_id).is_perspective_pinhole()}
+    registered = _perspective_registered(rec)
     out = {}
     with read_only(database) as db:
         keypoints = {image_id: read_keypoints(db, image_id)[:, :2].astype(np.float64) for image_id in registered}
-        for pair_id, inliers in db.execute("SELECT pair_id, rows FROM two_view_geometries WHERE rows >= ?",
-                                           (min_inliers,)).fetchall():
+        for pair_id, in db.execute("SELECT pair_id FROM two_view_geometries WHERE rows >= ?", (min_inliers,)).fetchall():
             a, b = pycolmap.pair_id_to_image_pair(pair_id)
             if a in registered and b in registered:
                 matches = read_inlier_matches(db, pair_id)
-                share = agreement(rec, a, b, keypoints[a][matches[:, 0]], keypoints[b][matches[:, 1]])
-                if share is not None:
-                    out[pair_id] = (inliers, share)
+                out[pair_id] = (keypoints[a][matches[:, 0]], keypoints[b][matches[:, 1]])
     return out
+
+
+def pair_agreement(rec, pixels: dict[int, tuple[np.ndarray, np.ndarray]]) -> dict[int, float]:
+    """Pair id -> the share of its inlier matches (``pixels``: :func:`pair_pixels`) that agree with ``rec``'s
+    poses (:func:`agreement`), for the pairs both of whose photos ``rec`` registers."""
+    import pycolmap
+
+    registered = set(rec.reg_image_ids())
+    out = {}
+    for pair_id, (pixels_a, pixels_b) in pixels.items():
+        a, b = pycolmap.pair_id_to_image_pair(pair_id)
+        if a in registered and b in registered:
+            share = agreement(rec, a, b, pixels_a, pixels_b)
+            if share is not None:
+                out[pair_id] = share
+    return out
+
+
+def _perspective_registered(rec) -> set[int]:
+    """Ids of ``rec``'s registered photos with a perspective camera (the only ones checked: module doc)."""
+    return {image_id for image_id in rec.reg_image_ids()
+            if rec.camera(rec.image(image_id).camera_id).is_perspective_pinhole()}
 
 
 def agreement(rec, a: int, b: int, pixels_a: np.ndarray, pixels_b: np.ndarray) -> float | None:

@@ -55,16 +55,17 @@ def _drop_masked(ctx: StageContext, mesh):
 
 def _no_finer_than_the_photos(ctx: StageContext, mesh, faces_per_pixel: float):
     """The mesh decimated to ``faces_per_pixel`` faces per pixel of its surface in the views that show it
-    largest, where it has more (:mod:`recon.surface.resolution`)."""
+    largest, where it has more (:mod:`recon.surface.resolution`), and how many faces went."""
     from recon.surface.cleanup import decimate
     from recon.surface.resolution import resolved_faces
 
     target = resolved_faces(mesh, ctx.input(DenseScene).views(), faces_per_pixel)
     if target >= len(mesh.faces):
-        return mesh
+        return mesh, 0
     ctx.log.info("mesh: %d faces for the photos' %d pixels of its surface: decimated to %d (mesh.max_faces_per_pixel "
                  "%g)", len(mesh.faces), round(target / faces_per_pixel), target, faces_per_pixel)
-    return decimate(mesh, target)
+    decimated = decimate(mesh, target)
+    return decimated, len(mesh.faces) - len(decimated.faces)
 
 
 def _depth_maps(ctx: StageContext):
@@ -148,10 +149,9 @@ class Mesh(Stage):
         if masked is not None:
             mesh, dropped = masked
             ctx.log.info("mesh: %d faces over masked pixels dropped", dropped)
-        finer = len(mesh.faces)
+        finer = 0
         if len(mesh.faces) and cfg.max_faces_per_pixel:
-            mesh = _no_finer_than_the_photos(ctx, mesh, cfg.max_faces_per_pixel)
-        finer -= len(mesh.faces)
+            mesh, finer = _no_finer_than_the_photos(ctx, mesh, cfg.max_faces_per_pixel)
         if len(mesh.faces) == 0:
             raise StageError(f"mesh: the {cfg.method} surface is empty after trimming; lower "
                              "mesh.density_quantile, set mesh.drop_unseen: false, or check the fusion stage's cloud")

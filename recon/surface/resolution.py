@@ -17,8 +17,7 @@ import trimesh
 
 from recon.geometry.transforms import project
 from recon.mvs.views import ViewCamera
-from recon.surface.raycast import scene_of
-from recon.surface.unseen import seen_by
+from recon.surface.unseen import face_geometry, seen_by
 
 
 def best_view_pixels(mesh: trimesh.Trimesh, views: Iterable[ViewCamera]) -> np.ndarray:
@@ -26,10 +25,7 @@ def best_view_pixels(mesh: trimesh.Trimesh, views: Iterable[ViewCamera]) -> np.n
     views that see it (:func:`recon.surface.unseen.seen_by`); 0 where none does."""
     vertices = np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces)
-    scene = scene_of(vertices, faces)
-    tri = vertices[faces]
-    centres = tri.mean(axis=1)
-    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    scene, centres, normals = face_geometry(vertices, faces)
     best = np.zeros(len(faces))
     for view in views:
         _, seen = seen_by(scene, view, centres, normals)

@@ -63,10 +63,7 @@ def face_views(vertices: np.ndarray, faces: np.ndarray, views: Iterable[tuple[Vi
     """Per face, how many of ``views`` (camera, its depth map or None): see it (module doc); see it and hold
     a depth at its centre's pixel; see it and find depths within ``ENCLOSED_DEPTH`` of its own on
     ``ENCLOSED_SIDES`` sides of that pixel (a hole in the depth map, not its edge)."""
-    scene = scene_of(vertices, faces)
-    tri = vertices[faces]
-    centres = tri.mean(axis=1)
-    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    scene, centres, normals = face_geometry(vertices, faces)
     counts = np.zeros((3, len(faces)), np.int32)
     for view, depth in views:
         at, seen = seen_by(scene, view, centres, normals)
@@ -83,6 +80,12 @@ def face_views(vertices: np.ndarray, faces: np.ndarray, views: Iterable[tuple[Vi
             sides += (side > 0) & (np.abs(side - at["z"]) <= ENCLOSED_DEPTH * at["z"])
         counts[2] += seen & (sides >= ENCLOSED_SIDES)
     return counts[0], counts[1], counts[2]
+
+
+def face_geometry(vertices: np.ndarray, faces: np.ndarray) -> tuple[object, np.ndarray, np.ndarray]:
+    """The mesh's ray-casting scene and its faces' centres and (unnormalised) normals, for :func:`seen_by`."""
+    tri = vertices[faces]
+    return scene_of(vertices, faces), tri.mean(axis=1), np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
 
 
 def seen_by(scene, view, centres: np.ndarray, normals: np.ndarray) -> tuple[dict, np.ndarray]:

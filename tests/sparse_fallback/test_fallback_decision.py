@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from recon.sparse.mapping import Attempt, Mapping, choose, left_out_warning, reconstruct, shortfall
@@ -135,7 +136,10 @@ def _global_mapping(monkeypatch, database, global_mapping):
     import recon.sparse.mapping as mapping
 
     monkeypatch.setattr(pycolmap, "global_mapping", global_mapping)
-    monkeypatch.setattr(mapping, "pair_agreement", lambda model, db, min_inliers: model.agreement)
+    monkeypatch.setattr(mapping, "pair_pixels", lambda model, db, min_inliers:  # n inliers: n rows of pixels
+                        {p: (np.zeros((n, 2)), np.zeros((n, 2))) for p, (n, _) in model.agreement.items()})
+    monkeypatch.setattr(mapping, "pair_agreement", lambda model, pixels:
+                        {p: share for p, (_, share) in model.agreement.items() if p in pixels})
     cfg = SimpleNamespace(min_num_matches=15, min_model_size=3, multiple_models=True, deterministic=False)
     false_pairs = []
     with mapping.private_copy(database) as copy:
