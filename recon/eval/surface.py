@@ -206,18 +206,25 @@ def _as_geometry(obj) -> tuple[np.ndarray, np.ndarray | None]:
     raise TypeError(f"cannot evaluate a {type(obj).__name__}: give points (N, 3), a mesh or a file path")
 
 
-def object_metrics(mesh, object_mesh, thresholds=THRESHOLDS, seed: int = 0, extent: float | None = None) -> dict:
+def object_metrics(mesh, object_mesh, thresholds=THRESHOLDS, seed: int = 0, extent: float | None = None,
+                   observable=None) -> dict:
     """Accuracy, completeness and F-score (percent) of a mesh or a point cloud (any input of
     :func:`surface_metrics`) against one object alone (a masked capture's subject), at each ``tau``
     times ``extent`` (default: the object's bounding-box diagonal): accuracy over samples of ``mesh``
     (or its points; anything else it holds counts against it), completeness over samples of the
-    object's whole surface (its underside, which no photo sees, included)."""
+    object's surface. Given ``observable`` (a function of (N, 3) points giving True where a view sees
+    them, as :func:`views_seeing` tells), only those samples count, as :func:`surface_metrics` counts
+    the observable surface alone: an object standing on a table has an underside no photo sees (the
+    zoo's masked_object: 10 % of its surface), which no reconstruction can hold. Without it, the
+    whole surface counts."""
     verts, faces = _as_geometry(mesh)
     obj_verts, obj_faces = _as_geometry(object_mesh)
     extent = extent or float(np.linalg.norm(np.ptp(obj_verts, axis=0)))
     spacing = min(float(t) for t in thresholds) * extent / 2
     points = verts if faces is None else sample_mesh(verts, faces, spacing, seed)
     truth = sample_mesh(obj_verts, obj_faces, spacing, seed + 1)
+    if observable is not None:
+        truth = truth[observable(truth)]
     acc = _mesh_distance(obj_verts, obj_faces)(points)
     if faces is None:
         bound = max(thresholds) * extent

@@ -134,3 +134,18 @@ def test_object_metrics_take_a_point_cloud_too():
     half = on_it[on_it[:, 2] > 0]
     m = object_metrics(np.concatenate([half, half[:1000] + [2.0, 0, 0]]), ball)  # half of it, and a stray piece
     assert 45 < m["completeness@0.002"] < 55 and m["accuracy@0.002"] < 100 * len(half) / (len(half) + 999)
+
+
+def test_object_metrics_count_only_the_surface_a_view_sees_when_told_which():
+    """An object on a table: its underside no photo sees does not count against a reconstruction of
+    what the photos show, but it does when every sample counts."""
+    from recon.eval.surface import object_metrics
+
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
+    upper = sample_mesh(ball.vertices, ball.faces, 0.002, seed=3)
+    upper = upper[upper[:, 2] > -0.3]
+    seen = object_metrics(upper, ball, observable=lambda p: p[:, 2] > -0.3)
+    whole = object_metrics(upper, ball)
+    assert seen["completeness@0.002"] > 99.0
+    assert whole["completeness@0.002"] < 90.0
+    assert seen["accuracy@0.002"] == whole["accuracy@0.002"]
