@@ -46,7 +46,9 @@ depth maps miss. At session 45 the wide scenes' clouds were accurate and incompl
   held-out views.
 - ``masked_object`` runs with ``preprocess.mask_dir`` set to the masks it ships, and its fused cloud
   and mesh are scored against the masked object alone (against the whole scene, the room and the
-  table the masks keep out counted as missing: fused F@0.2 % 0.014).
+  table the masks keep out counted as missing: fused F@0.2 % 0.014), on the part of its surface some
+  input view sees, as the other scenes are (its underside, which it stands on, left out:
+  :func:`object_figures`).
 
 Results go to ``<out>/quality.json`` (figures per scene and the summary); ``--compare BEFORE AFTER``
 prints two such files side by side (:func:`compare`). Scenes render once into
