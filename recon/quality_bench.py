@@ -256,10 +256,10 @@ def object_figures(ws: Path, scene) -> dict:
     import trimesh
 
     from recon.eval.surface import object_metrics, views_seeing
+    from recon.products import Published
 
     def observable(points: np.ndarray) -> np.ndarray:
         return views_seeing(scene, points) >= 1
-    from recon.products import Published
 
     sim = recon.api.model_to_ground_truth(ws, scene.root)
     truth = trimesh.load(scene.object_mesh_path, process=False, force="mesh")
@@ -369,7 +369,7 @@ def scene_figures(ws: Path, scene) -> dict:
         figures |= object_figures(ws, scene)
     row = {"registered": figures["poses"]["registered"], "pose_auc@5": figures["poses"]["auc@5"] / 100,
            "depth": depth_figures(ws, scene)}
-    if not scene.masked:  # (its figures are the object's alone: object_figures)
+    if not scene.masked:  # (these count the whole scene's surface; a masked scene's is its object's: object_figures)
         points, counts = surface_views(scene)
         row["seen_twice"] = seen_twice(counts)
         row["fused_by_views"] = fused_by_views(ws, scene, points, counts)
