@@ -64,5 +64,9 @@ class MVSOptions:
                                     "sources confirming the depth show there: the foreground's depth the matching window "
                                     "carried onto the background beside a silhouette (recon.mvs.fattening; zoo: clutter "
                                     "held-out texture 25.29 -> 25.82 dB, mesh F@0.2 % .947 -> .949; docs/DECISIONS.md)")
+    ground_normal: bool = opt(True, "cpu: where the photos agree on an up direction (taken by hand or at eye height), "
+                                    "each pixel also tests its plane turned to face it: the ground, seen at grazing "
+                                    "angles, where random normals rarely land close (recon.mvs.ground_normal; zoo: "
+                                    "docs/DECISIONS.md)")
     num_threads: int = opt(0, "CPU threads for the kernels (0 = all cores)", ge=0)
     seed: int = opt(0, "random seed; results are identical for equal seeds and inputs, whatever the thread count", ge=0)

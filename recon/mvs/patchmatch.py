@@ -10,7 +10,8 @@ The variant follows Gipuma (Galliani et al., ICCV 2015) and ACMH/ACMM (Xu and Ta
   far strips around the pixel; from each region the neighbour with the lowest current cost is taken
   and its plane is tested at the pixel (the plane is intersected with the pixel's ray, as in Gipuma);
 * refinement tests perturbed depth/normal combinations (and, at the coarsest level, random ones), the
-  perturbation range halving every sweep (Gipuma, ACMM);
+  perturbation range halving every sweep (Gipuma, ACMM); in the photometric pass also the best plane
+  turned to the ground's normal, where it is known (:mod:`recon.mvs.ground_normal`);
 * the photometric cost is 1 - NCC with bilateral weights (COLMAP, ACMM) over a window sampled with a
   stride (ACMM's 11 x 11 window read every second pixel), warped to each source view through the
   plane-induced homography, linearised at the window centre (one affine warp per window: a departure
@@ -63,6 +64,7 @@ MAX_COST = 2.0
 UNSEEN_COST = 1.0
 ALL_VIEWS, SELECT_VIEWS, KEEP_VIEWS = 0, 1, 2  # view-mask modes of evaluate()
 _MIN_COS = 0.05  # hypotheses whose plane is seen at a grazing angle (|cos| below this) are rejected
+NO_NORMALS = np.zeros((0, 3))  # no normals known beforehand (propagate_and_refine's ``normals``)
 
 
 @dataclass(frozen=True)
@@ -690,10 +692,11 @@ def _tested_before(tested, n_tested, d, n0, n1, n2):
 def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max,
                          window, sigma_spatial, sigma_color, min_var, top_k, depth, normal, cost, views,
                          dmin, dmax, perturbation, random_candidates, key, region_offsets, region_counts,
-                         n_regions):
+                         n_regions, normals):
     """One half sweep: every pixel of ``colour`` ((x + y) % 2) tests the planes of the best
     neighbours of the first ``n_regions`` regions (propagation), then perturbed and, with
-    ``random_candidates``, random planes (refinement), keeping the cheapest. Each pixel is matched
+    ``random_candidates``, random planes, then its best plane turned to each of ``normals`` (K, 3;
+    reference camera frame) that faces the camera (refinement), keeping the cheapest. Each pixel is matched
     against the sources of its view mask; a neighbour's plane also against the neighbour's, and where
     it wins, the pixel's mask becomes the best top_k of the two masks' sources.
 
@@ -784,6 +787,20 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
                 if h < best:
                     best = h
                     bd = d
+                    b0 = n0
+                    b1 = n1
+                    b2 = n2
+            for i in range(normals.shape[0]):
+                n0 = normals[i, 0]
+                n1 = normals[i, 1]
+                n2 = normals[i, 2]
+                if n0 * rx + n1 * ry + n2 * rz >= 0.0:
+                    continue
+                h = hypothesis_cost(x, y, bd, n0, n1, n2, mask, weights, centred, ref_var, window, kinv,
+                                    A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k,
+                                    min_var, costs, scratch, best)
+                if h < best:
+                    best = h
                     b0 = n0
                     b1 = n1
                     b2 = n2
@@ -928,10 +945,11 @@ def evaluate_state(level: Level, state: State, options: MVSOptions, views_mode: 
 
 def sweeps(level: Level, state: State, options: MVSOptions, depth_range: tuple[float, float],
            iterations: int, perturbation: float, random_candidates: bool, far_regions: bool, seed: int,
-           first_sweep: int, src_depth: np.ndarray | None = None) -> None:
+           first_sweep: int, src_depth: np.ndarray | None = None, normals: np.ndarray = NO_NORMALS) -> None:
     """Run ``iterations`` red-black sweeps of propagation and refinement on ``state``; the
     perturbation halves every sweep. ``far_regions`` adds the four far strips to the four near
-    regions of the propagation."""
+    regions of the propagation; each pixel also tests its plane turned to each of ``normals`` (K, 3;
+    reference camera frame)."""
     g = level.geometry
     window, ss, sc, min_var, top_k = _kernel_params(options)
     depth_maps, weight, cap = _geo_args(level, src_depth, options)
@@ -942,7 +960,7 @@ def sweeps(level: Level, state: State, options: MVSOptions, depth_range: tuple[f
                                  depth_maps, g.M, g.c, weight, cap, window, ss, sc, min_var, top_k,
                                  state.depth, state.normal, state.cost, state.views, depth_range[0],
                                  depth_range[1], perturbation * 0.5 ** it, random_candidates, key,
-                                 REGION_OFFSETS, REGION_COUNTS, 8 if far_regions else 4)
+                                 REGION_OFFSETS, REGION_COUNTS, 8 if far_regions else 4, normals)
 
 
 def pyramid_levels(shape: tuple[int, int], options: MVSOptions) -> int:
@@ -955,14 +973,17 @@ def pyramid_levels(shape: tuple[int, int], options: MVSOptions) -> int:
 
 
 def photometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
-                      depth_range: tuple[float, float], options: MVSOptions, seed: int) -> State:
+                      depth_range: tuple[float, float], options: MVSOptions, seed: int,
+                      ground: np.ndarray | None = None) -> State:
     """Photometric PatchMatch, coarse to fine, for a float32 [0, 1] grey reference image.
 
     The coarsest level starts from random planes and matches every pixel against all sources, with
     random refinement candidates; each finer level starts from the coarser planes and (with
     ``options.view_subset``) matches each pixel against its top_k sources only. The finest level
-    propagates from the near regions only.
+    propagates from the near regions only. With ``ground`` (the ground's unit normal, world frame;
+    :mod:`recon.mvs.ground_normal`), every level's refinement also tests each pixel's plane turned to it.
     """
+    normals = NO_NORMALS if ground is None else np.array([ref_cam.R @ ground, -(ref_cam.R @ ground)])
     sweep = 0
     state = None
     previous = None
@@ -982,7 +1003,8 @@ def photometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, 
         subset = state is not None and options.view_subset
         evaluate_state(level, fresh, options, SELECT_VIEWS if subset else ALL_VIEWS)
         sweeps(level, fresh, options, depth_range, iterations, perturbation,
-               random_candidates=state is None, far_regions=lvl > 0, seed=seed, first_sweep=sweep)
+               random_candidates=state is None, far_regions=lvl > 0, seed=seed, first_sweep=sweep,
+               normals=normals)
         sweep += iterations
         state, previous = fresh, level
         log.debug("level %d (%dx%d): %d sweeps in %.2f s (%.2f s CPU)", lvl, level.ref.shape[1],

@@ -87,7 +87,8 @@ def photometric_view(dense_dir: str | Path, problem: Problem, options: MVSOption
     loaded = [load_grey(images / v.name, v, working_size(v, options.max_image_size)) for v in views]
     state = patchmatch.photometric_depth(
         loaded[0][0], [im for im, _ in loaded[1:]], loaded[0][1], [cam for _, cam in loaded[1:]],
-        (problem.depth_min, problem.depth_max), options, _seed(options, problem.ref))
+        (problem.depth_min, problem.depth_max), options, _seed(options, problem.ref),
+        None if problem.ground is None else np.asarray(problem.ground))
     write_map(map_path(out_dir, "normal", problem.ref, "photometric"), state.normal)
     path = write_map(map_path(out_dir, "depth", problem.ref, "photometric"), state.depth)
     log.info("%s: photometric depth %dx%d in %.1f s", problem.ref, state.depth.shape[1],

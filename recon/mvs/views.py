@@ -70,6 +70,7 @@ import pycolmap
 from scipy.spatial import cKDTree
 
 from recon.geometry.transforms import project
+from recon.mvs.ground_normal import up_direction
 from recon.mvs.options import MVSOptions
 
 log = logging.getLogger(__name__)
@@ -97,13 +98,15 @@ class ViewCamera:
 @dataclass(frozen=True, eq=False)
 class Problem:
     """One depth map to estimate: the reference image, its source images (best first), the depth range
-    and the cameras of all of them (so a worker needs no sparse model)."""
+    and the cameras of all of them (so a worker needs no sparse model); the ground's normal where the
+    photos tell it (world frame, :mod:`recon.mvs.ground_normal`)."""
 
     ref: str
     sources: tuple[str, ...]
     depth_min: float
     depth_max: float
     cameras: dict[str, ViewCamera]
+    ground: tuple[float, float, float] | None = None
 
 
 def view_camera(image: pycolmap.Image, camera: pycolmap.Camera) -> ViewCamera:
@@ -184,6 +187,8 @@ def select_problems(reconstruction: pycolmap.Reconstruction, options: MVSOptions
         if image.has_pose:
             cameras[image_id] = view_camera(image, reconstruction.cameras[image.camera_id])
     ids = sorted(cameras)
+    up = up_direction([cameras[i].R for i in ids]) if options.ground_normal else None
+    ground = None if up is None else (float(up[0]), float(up[1]), float(up[2]))
     xyz, obs_point, obs_image = observations(reconstruction, ids)
     centres = np.array([-cameras[i].R.T @ cameras[i].t for i in ids]).reshape(-1, 3)
     focals = np.array([np.sqrt(cameras[i].K[0, 0] * cameras[i].K[1, 1]) for i in ids])
@@ -240,7 +245,7 @@ def select_problems(reconstruction: pycolmap.Reconstruction, options: MVSOptions
             ref=cam.name, sources=sources,
             depth_min=float(near / (1 + options.depth_margin) / options.near_reach),
             depth_max=float(far * (1 + options.depth_margin) * options.far_reach),
-            cameras={name: all_cameras[name] for name in (cam.name, *sources)}))
+            cameras={name: all_cameras[name] for name in (cam.name, *sources)}, ground=ground))
     own_far = {problem.ref: problem.depth_max for problem in problems}  # each view reaches as far as its sources
     return [replace(problem, depth_max=max([problem.depth_max, *(own_far.get(s, 0.0) for s in problem.sources)]))
             for problem in problems]

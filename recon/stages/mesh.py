@@ -106,7 +106,7 @@ def _fused_cloud(ctx: StageContext):
 @register
 class Mesh(Stage):
     name = "mesh"
-    version = 12
+    version = 13
     Config = MeshConfig
     requires = (DenseScene, DepthMaps, FusedCloud)
     produces = SurfaceMesh

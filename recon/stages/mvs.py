@@ -85,7 +85,7 @@ def _view_pass(task) -> str:
 @register
 class Mvs(Stage):
     name = "mvs"
-    version = 13
+    version = 14
     Config = MvsConfig
     requires = (DenseScene, SparseModel, PreparedPhotos)  # the photos and their cameras key the maps kept
     produces = DepthMaps

@@ -17,9 +17,9 @@ class MeshOptions:
                    "of the fused points' tetrahedra by the views' lines of sight (as OpenMVS); zoo mesh F@0.2 % mean .882 "
                    "against Poisson's .886, above it where the cloud has stray or weakly supported points, more "
                    "holes (docs/DECISIONS.md)")
-    depth: int = opt(9, "Poisson octree depth: cells of the points' extent / 2^depth, the extent without "
-                                "the farthest 0.1 % of the points per axis where those spread it twice as wide; "
-                                "delaunay keeps one point per cell of half that size", ge=5, le=13)
+    depth: int = opt(9, "Poisson's cells: 1.2 times the points' extent without their farthest 0.1 % per axis "
+                        "/ 2^depth, at most 20 times the points' median spacing (recon.surface.poisson); delaunay "
+                        "keeps one point per cell of that extent / 2^(depth + 1)", ge=5, le=13)
     point_weight: float = opt(4.0, "Poisson screening weight: higher follows the points more closely", ge=0.0)
     deterministic: bool = opt(True, "single-threaded Poisson: the same mesh from the same points (multi-threaded, "
                                     "its densities differ in the last digits, so trimming cuts other faces)")

@@ -205,3 +205,14 @@ def test_distorted_cameras_are_refused(reconstruction):
     camera.params = [camera.focal_length_x, camera.principal_point_x, camera.principal_point_y, 0.01]
     with pytest.raises(ValueError, match="pinhole"):
         select_problems(rec)
+
+
+def test_views_carry_the_ground_normal_of_photos_held_level(reconstruction):
+    """The small scene's photos look along a line, held level: the ground faces the photos' mean up, and
+    without mvs.ground_normal no view gets one."""
+    from recon.mvs.ground_normal import up_direction
+
+    up = up_direction([image.cam_from_world().rotation.matrix() for image in reconstruction.images.values()])
+    problems = select_problems(reconstruction)
+    assert up is not None and all(np.allclose(p.ground, up) for p in problems)
+    assert all(p.ground is None for p in select_problems(reconstruction, MVSOptions(ground_normal=False)))

@@ -8,7 +8,7 @@ from surface_scene import sphere_points
 from recon.eval.surface import surface_metrics
 from recon.surface.cleanup import clean_mesh
 from recon.surface.options import MeshOptions
-from recon.surface.poisson import octree_depth, poisson_mesh, trim_cell
+from recon.surface.poisson import MAX_CELL_SPACINGS, MIN_CUBE_SCALE, octree, poisson_cell, poisson_mesh
 from recon.surface.tsdf import tsdf_mesh
 
 
@@ -106,17 +106,19 @@ def test_points_sparser_than_the_poisson_cells_leave_no_pinholes():
     assert np.abs(np.linalg.norm(mesh.vertices, axis=1) - 1).max() < 0.02
 
 
-@pytest.mark.parametrize("spread", [2 ** 1.5, 2 ** 2.5])  # where the octree levels the strays add round up
-def test_the_distance_trim_does_not_jump_where_the_stray_levels_round(spread):
-    # a cloud in the unit cube and three stray points along x, just short of and just past `spread`
-    def cloud(x):
-        return np.vstack([np.random.default_rng(0).random((20_000, 3)), [[x, 0.5, 0.5]] * 3])
-
-    short, past = cloud(0.97 * spread), cloud(1.03 * spread)
-    levels = octree_depth(short, 9), octree_depth(past, 9)
-    assert levels[1] == levels[0] + 1  # the octree's cells halve...
-    cells = trim_cell(short, 9, levels[0]), trim_cell(past, 9, levels[1])
-    assert cells[1] == pytest.approx(cells[0], rel=0.01)  # ...the trim's do not
+def test_poisson_cells_do_not_jump_as_stray_points_move_out():
+    # a cloud in the unit cube and three stray points along x, from 1.5 to 12 cube sides out: the octree
+    # needs more levels to span them, and its cells stay the asked size all the same
+    spacing = 0.02  # about the 20,000 points' nearest-neighbour distance: far from binding the cells
+    levels = set()
+    for x in np.geomspace(1.5, 12, 25):
+        points = np.vstack([np.random.default_rng(0).random((20_000, 3)), [[x, 0.5, 0.5]] * 3])
+        cell = poisson_cell(points, 9, spacing)
+        assert cell == pytest.approx(poisson_cell(points[:-3], 9, spacing), rel=0.01)
+        depth, scale = octree(points, cell, 9)
+        assert scale >= MIN_CUBE_SCALE and scale * np.ptp(points, axis=0).max() / 2**depth == pytest.approx(cell)
+        levels.add(depth)
+    assert len(levels) >= 3
 
 
 def test_a_few_stray_points_far_out_do_not_coarsen_the_poisson_mesh(small_scene):
@@ -134,3 +136,26 @@ def test_a_few_stray_points_far_out_do_not_coarsen_the_poisson_mesh(small_scene)
     assert len(strayed.faces) > 0.7 * len(clean.faces)
     f_clean = surface_metrics(clean, small_scene.info)["fscore@0.002"]
     assert surface_metrics(strayed, small_scene.info)["fscore@0.002"] > f_clean - 5
+
+
+def test_a_wide_sparse_surface_with_many_points_does_not_coarsen_the_dense_one(monkeypatch):
+    """A ball sampled densely and a ground 60 times wider holding 3 % of the points (far ground a
+    walk finds at grazing angles): too many to leave out as strays, so the cells of the whole extent
+    would be near the ball's radius; held within MAX_CELL_SPACINGS times the points' spacing, the
+    ball keeps its shape."""
+    ball = sphere_points(80_000)
+    xy = (np.random.default_rng(0).random((2400, 2)) - 0.5) * 60
+    ground = np.column_stack([xy, np.full(len(xy), -1.5)])
+    points = np.vstack([ball, ground])
+    normals = np.vstack([ball, np.tile([0.0, 0.0, 1.0], (len(ground), 1))])
+
+    def radial_error(bound):
+        monkeypatch.setattr("recon.surface.poisson.MAX_CELL_SPACINGS", bound)
+        vertices = np.asarray(poisson_mesh(points, normals, options=MeshOptions(depth=6, density_quantile=0)).vertices)
+        radius = np.linalg.norm(vertices, axis=1)
+        return np.median(np.abs(radius[radius < 1.3] - 1)), np.count_nonzero(radius < 1.3)
+
+    error, count = radial_error(MAX_CELL_SPACINGS)
+    assert error < 0.01 and count > 300
+    error, count = radial_error(1e9)  # the cells of the extent alone: the ball is a few blobs
+    assert error > 0.05 or count < 50
