@@ -67,6 +67,7 @@ class MVSOptions:
     ground_normal: bool = opt(True, "cpu: where the photos agree on an up direction (taken by hand or at eye height), "
                                     "each pixel also tests its plane turned to face it: the ground, seen at grazing "
                                     "angles, where random normals rarely land close (recon.mvs.ground_normal; zoo: "
+                                    "fused F@0.2 % worst (walkaround) .863 -> .868, mean .9630 -> .9635; "
                                     "docs/DECISIONS.md)")
     num_threads: int = opt(0, "CPU threads for the kernels (0 = all cores)", ge=0)
     seed: int = opt(0, "random seed; results are identical for equal seeds and inputs, whatever the thread count", ge=0)
