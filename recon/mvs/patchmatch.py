@@ -766,8 +766,13 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
             c0 = b0
             c1 = b1
             c2 = b2
-            for i in range(n_candidates):
-                if i == 0:  # perturbed depth, same normal
+            for i in range(n_candidates + normals.shape[0]):
+                if i >= n_candidates:  # the best plane so far, turned to a known normal facing the camera
+                    k = i - n_candidates
+                    d, n0, n1, n2 = bd, normals[k, 0], normals[k, 1], normals[k, 2]
+                    if n0 * rx + n1 * ry + n2 * rz >= 0.0:
+                        continue
+                elif i == 0:  # perturbed depth, same normal
                     d, n0, n1, n2 = dp, c0, c1, c2
                 elif i == 1:  # same depth, perturbed normal
                     d, n0, n1, n2 = d0, p0, p1, p2
@@ -787,20 +792,6 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
                 if h < best:
                     best = h
                     bd = d
-                    b0 = n0
-                    b1 = n1
-                    b2 = n2
-            for i in range(normals.shape[0]):
-                n0 = normals[i, 0]
-                n1 = normals[i, 1]
-                n2 = normals[i, 2]
-                if n0 * rx + n1 * ry + n2 * rz >= 0.0:
-                    continue
-                h = hypothesis_cost(x, y, bd, n0, n1, n2, mask, weights, centred, ref_var, window, kinv,
-                                    A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max, top_k,
-                                    min_var, costs, scratch, best)
-                if h < best:
-                    best = h
                     b0 = n0
                     b1 = n1
                     b2 = n2
