@@ -12,9 +12,10 @@ at its depth, in every sweep; the matching cost decides, as for any candidate. P
 looking down lean their up vectors in towards it, and round the orbit the lean cancels: the mean's
 direction is still the up, its length the cosine of their tilt (zoo orbits 28-40 degrees down: .77-.92).
 A nadir survey's photos agree on no up direction, or on a horizontal one (all flown one way), whose plane
-the nadir views see edge-on; its ground faces the cameras, where the random search does well. Fitting planes to the sparse
-points finds the walls and the table top too, but not the ground of a walk (zoo walkaround: 15 of its
-2,264 sparse points), and testing the walls' normals as well changed nothing there (docs/DECISIONS.md).
+the nadir views see edge-on; its ground faces the cameras, where the random search does well. Fitting
+planes to the sparse points finds the walls and the table top too, but not the ground of a walk (zoo
+walkaround: 15 of its 2,264 sparse points), and testing the walls' normals as well changed nothing there
+(docs/DECISIONS.md).
 
 The normal does not key a view's photometric maps (recon.mvs.reuse): photos added later move the mean up
 direction a little, and the maps made with the old one are kept as they are.

@@ -142,8 +142,9 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | N
     vertices = np.asarray(mesh.vertices) @ OBLIQUE
     faces = np.asarray(mesh.triangles)
     density = np.asarray(density)
-    log.info("poisson: cells of %.4g (mesh.depth %d; the points' median spacing %.3g), octree depth %d: %d vertices, "
-             "%d faces from %d points", cell, options.depth, spacing, depth, len(vertices), len(faces), len(points))
+    log.info("poisson: cells of %.4g (mesh.depth %d; the points' median spacing %.3g), octree depth %d: "
+             "%d vertices, %d faces from %d points", cell, options.depth, spacing, depth, len(vertices),
+             len(faces), len(points))
 
     keep_vertex = np.ones(len(vertices), bool)
     if options.density_quantile > 0:
@@ -155,8 +156,8 @@ def poisson_mesh(points: np.ndarray, normals: np.ndarray, colors: np.ndarray | N
     keep_face = keep_vertex[faces].all(axis=1)
     if options.trim_distance > 0:
         centroids = vertices[faces].mean(axis=1)
-        dist, _ = tree.query(centroids, distance_upper_bound=max(options.trim_distance * cell, point_gap(nearest)),
-                             workers=-1)
+        reach = max(options.trim_distance * cell, point_gap(nearest))
+        dist, _ = tree.query(centroids, distance_upper_bound=reach, workers=-1)
         keep_face &= np.isfinite(dist)
     out = trimesh.Trimesh(vertices, faces[keep_face], process=False)
     out.remove_unreferenced_vertices()
