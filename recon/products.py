@@ -273,12 +273,12 @@ class DenseScene(Product):
 
 class DepthMaps(Product):
     """mvs: per-view depth and normal maps in COLMAP's format: the final (geometric) ones, and the
-    photometric ones only with ``mvs.keep_photometric`` (no later stage reads them)."""
+    photometric ones and their source masks only with ``mvs.keep_photometric`` (no later stage reads them)."""
 
     required = ("stereo/depth_maps",)
     publish = {"stereo": "dense/stereo"}
     describe = ("stereo/depth_maps/<image>.geometric.bin", "stereo/normal_maps/<image>.geometric.bin",
-                "stereo/{depth,normal}_maps/<image>.photometric.bin")
+                "stereo/{depth,normal}_maps/<image>.photometric.bin", "stereo/source_masks/<image>.photometric.npz")
 
     @property
     def folder(self) -> Path:

@@ -107,11 +107,11 @@ def run_views(dense: Path, options: MVSOptions, max_views: int) -> dict:
     import pycolmap
 
     from recon.mvs.colmap_io import read_depth_map
-    from recon.mvs.stereo import geometric_view, map_path, photometric_view
+    from recon.mvs.stereo import SOURCE_MASKS, geometric_view, map_path, photometric_view
     from recon.mvs.views import select_problems
 
     out = dense / "stereo"
-    for folder in ("depth_maps", "normal_maps"):
+    for folder in ("depth_maps", "normal_maps", SOURCE_MASKS):
         shutil.rmtree(out / folder, ignore_errors=True)
     problems = select_problems(pycolmap.Reconstruction(dense / SparseModel.MODELS), options)
     measured = problems[:max_views]

@@ -79,7 +79,7 @@ def camera_record(view: ViewCamera, photo=None) -> dict:
 #: (the geometric pass, the filter, the background clearing and the fill), from the stored
 #: photometric maps. The mvs stage's own version changes with either.
 PHOTOMETRIC_VERSION = 14
-FINAL_VERSION = 2
+FINAL_VERSION = 3
 
 #: the options only the geometric pass, the filter, the silhouette check, the background clearing and the fill
 #: read: they key a view's final maps, not its photometric ones, so changing one runs the final part again

@@ -6,6 +6,7 @@ PINHOLE cameras, ``stereo/``). Maps are written in COLMAP's layout under ``out_d
 
     depth_maps/<image>.photometric.bin    normal_maps/<image>.photometric.bin
     depth_maps/<image>.geometric.bin      normal_maps/<image>.geometric.bin
+    source_masks/<image>.photometric.npz  (recon's own: each pixel's sources, for the geometric pass)
 
 at the working resolution (longest side at most ``max_image_size``), which fusion (recon's, or
 ``pycolmap.stereo_fusion``) reads with the full-size images. Each file is written atomically and the
@@ -29,6 +30,7 @@ import numba
 import numpy as np
 import pycolmap
 
+from recon.files import atomic
 from recon.mvs import patchmatch
 from recon.mvs.background import clear_background
 from recon.mvs.colmap_io import read_depth_map, read_normal_map, write_map
@@ -45,6 +47,33 @@ def map_path(out_dir: str | Path, kind: str, name: str, pass_name: str) -> Path:
     """``out_dir/{kind}_maps/<name>.<pass_name>.bin`` for kind 'depth' or 'normal', pass
     'photometric' or 'geometric'."""
     return Path(out_dir) / f"{kind}_maps" / f"{name}.{pass_name}.bin"
+
+
+#: the folder, beside depth_maps/ and normal_maps/, of the photometric pass's per-pixel source masks
+SOURCE_MASKS = "source_masks"
+
+
+def sources_path(out_dir: str | Path, name: str) -> Path:
+    """``out_dir/source_masks/<name>.photometric.npz``: the photometric pass's per-pixel source masks."""
+    return Path(out_dir) / SOURCE_MASKS / f"{name}.photometric.npz"
+
+
+def write_source_masks(path: Path, views: np.ndarray, sources: list[str]) -> None:
+    """Each pixel's bit mask of the sources it was matched against (bit i: ``sources[i]``), atomically."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic(path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(f, views=views.astype(np.uint32), sources=np.array(sources))
+
+
+def read_source_masks(path: Path, sources: list[str]) -> np.ndarray | None:
+    """The masks :func:`write_source_masks` left at ``path`` (int64, as :class:`patchmatch.State` holds
+    them) when they index exactly ``sources``; None when there are none or they index other sources."""
+    if not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as data:
+        if data["sources"].tolist() != list(sources):
+            return None
+        return data["views"].astype(np.int64)
 
 
 def load_grey(path: Path, camera: ViewCamera, size: tuple[int, int]) -> tuple[np.ndarray, patchmatch.Camera]:
@@ -89,6 +118,7 @@ def photometric_view(dense_dir: str | Path, problem: Problem, options: MVSOption
         loaded[0][0], [im for im, _ in loaded[1:]], loaded[0][1], [cam for _, cam in loaded[1:]],
         (problem.depth_min, problem.depth_max), options, _seed(options, problem.ref),
         None if problem.ground is None else np.asarray(problem.ground))
+    write_source_masks(sources_path(out_dir, problem.ref), state.views, list(problem.sources))
     write_map(map_path(out_dir, "normal", problem.ref, "photometric"), state.normal)
     path = write_map(map_path(out_dir, "depth", problem.ref, "photometric"), state.depth)
     log.info("%s: photometric depth %dx%d in %.1f s", problem.ref, state.depth.shape[1],
@@ -102,7 +132,9 @@ def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
     maps of ``problem.ref`` against its sources' photometric depth maps; returns the depth map's path.
 
     Needs the reference's photometric maps in ``out_dir``; sources without a photometric depth map
-    (images that got no problem of their own) are left out.
+    (images that got no problem of their own) are left out. In the geometric pass each pixel starts with the
+    sources the photometric pass chose for it when its source masks index these sources; otherwise it
+    chooses again among all.
     """
     _use_threads(options)
     start = time.perf_counter()
@@ -121,12 +153,14 @@ def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
             image, cam = load_grey(images / name, problem.cameras[name], src_depth.shape[::-1])
             srcs.append(image)
             src_cams.append(cam)
-        everything = (1 << len(sources)) - 1
-        state = patchmatch.State(depth, normal, np.zeros_like(depth), np.full(depth.shape, everything, np.int64))
+        geometric = options.geometric and options.geometric_iterations > 0
+        masks = read_source_masks(sources_path(out_dir, problem.ref), sources) if geometric else None
+        views = np.full(depth.shape, (1 << len(sources)) - 1, np.int64) if masks is None else masks
+        state = patchmatch.State(depth, normal, np.zeros_like(depth), views)
         view = patchmatch.checked(ref, srcs, ref_cam, src_cams, src_depths)
-        if options.geometric and options.geometric_iterations > 0:
+        if geometric:
             state = patchmatch.geometric_depth(view, state, (problem.depth_min, problem.depth_max), options,
-                                               _seed(options, problem.ref))
+                                               _seed(options, problem.ref), keep_views=masks is not None)
         else:
             state = patchmatch.photometric_costs(view, state, options)
         fill = options.planar_fill and options.min_texture > 0

@@ -17,6 +17,7 @@ whether its final maps were reused, and whether its photometric maps were.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 from dataclasses import dataclass, field, replace
@@ -37,8 +38,10 @@ from recon.products import DenseScene, DepthMaps, PreparedPhotos, SparseModel
 from recon.stage import Stage, StageContext, StageError, register
 
 VIEWS = "views.json"  # in the output folder: per view, its sources and whether its maps were reused
-#: the item stores of the stage (:mod:`recon.items`): photometric depth, its normals (float16), final maps
-_STORES = {"photometric": ".bin", "photometric_normal": ".npy", "depth": ".bin", "normal": ".bin"}
+#: the item stores of the stage (:mod:`recon.items`): photometric depth, its normals (float16), its per-pixel
+#: source masks, final maps
+_STORES = {"photometric": ".bin", "photometric_normal": ".npy", "photometric_sources": ".npz", "depth": ".bin",
+           "normal": ".bin"}
 
 
 @dataclass(frozen=True)
@@ -59,7 +62,8 @@ class MvsConfig(MVSOptions):
            "below. At 320x240, 0 was 0.017 below in fused F, 8 0.006: raise it for small photos",
         ge=0, le=32)
     keep_photometric: bool = opt(
-        False, "keep each view's photometric depth and normal maps (<image>.photometric.bin) beside its final "
+        False, "keep each view's photometric depth and normal maps (<image>.photometric.bin) and source masks "
+               "(source_masks/<image>.photometric.npz) beside its final "
                "(geometric) ones; no later stage reads them and they double the stage's size. With it, every "
                "view is computed afresh")
 
@@ -85,7 +89,7 @@ def _view_pass(task) -> str:
 @register
 class Mvs(Stage):
     name = "mvs"
-    version = 14
+    version = 15
     Config = MvsConfig
     requires = (DenseScene, SparseModel, PreparedPhotos)  # the photos and their cameras key the maps kept
     produces = DepthMaps
@@ -109,7 +113,7 @@ class Mvs(Stage):
 
     def _cpu(self, ctx: StageContext, dense: DenseScene, stereo: Path, cfg: MvsConfig) -> dict:
         from recon.mvs import reuse
-        from recon.mvs.stereo import map_path
+        from recon.mvs.stereo import map_path, sources_path
 
         workers = max(1, min(ctx.executor.workers, len(os.sched_getaffinity(0))))
         threads = cfg.num_threads or max(1, len(os.sched_getaffinity(0)) // workers)
@@ -145,6 +149,7 @@ class Mvs(Stage):
             plan.stores["photometric"].put(item.key, map_path(stereo, "depth", p.ref, "photometric"), item.meta)
             normal = read_normal_map(map_path(stereo, "normal", p.ref, "photometric")).astype(np.float16)
             plan.stores["photometric_normal"].write(item.key, lambda tmp, n=normal: _save(tmp, n))
+            plan.stores["photometric_sources"].put(item.key, sources_path(stereo, p.ref))
         for p in todo:
             item = plan.geometric[p.ref]
             plan.stores["normal"].put(item.key, map_path(stereo, "normal", p.ref, "geometric"))
@@ -254,17 +259,20 @@ def _plan(ctx: StageContext, dense: DenseScene, cfg: MvsConfig) -> _Plan:
 
 def _link_photometric(plan: _Plan, stereo: Path, name: str, own: bool) -> bool:
     """Put the view's photometric depth map from the store into ``stereo`` (and, when its ``own``
-    geometric pass is to run, its normal map); whether it was there."""
-    from recon.mvs.stereo import map_path
+    geometric pass is to run, its normal map and source masks); whether it was there."""
+    from recon.mvs.stereo import map_path, sources_path
 
     item = plan.photometric[name]
     depth = map_path(stereo, "depth", name, "photometric")
     normal = plan.stores["photometric_normal"].get(item.key) if own else None
-    if depth.exists() or not plan.holds("photometric", item) or (own and normal is None):
+    masks = plan.stores["photometric_sources"].get(item.key) if own else None
+    if depth.exists() or not plan.holds("photometric", item) or (own and (normal is None or masks is None)):
         return False
     if not plan.stores["photometric"].link(item.key, depth):
         return False
     if own:
+        sources_path(stereo, name).parent.mkdir(exist_ok=True)
+        plan.stores["photometric_sources"].link(item.key, sources_path(stereo, name))
         normals = np.load(normal, allow_pickle=False).astype(np.float32)
         normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-12)
         write_map(map_path(stereo, "normal", name, "photometric"), normals)
@@ -309,12 +317,12 @@ def _apply_masks(ctx: StageContext, dense: DenseScene, stereo: Path, names: list
 
 
 def _drop_photometric(ctx: StageContext, stereo: Path) -> None:
-    """Delete the photometric depth and normal maps of every view that has its final (geometric) maps,
-    before the manifest lists the output's files: only the geometric pass reads them, and a later run
-    finds the photometric depth maps it needs in the item store (hard links: deleting these frees what
-    the store does not keep). A view with photometric maps only (COLMAP's backend with ``geometric``
+    """Delete the photometric depth and normal maps and source masks of every view that has its final
+    (geometric) maps, before the manifest lists the output's files: only the geometric pass reads them,
+    and a later run finds those it needs in the item store (hard links: deleting these frees what the
+    store does not keep). A view with photometric maps only (COLMAP's backend with ``geometric``
     off) keeps them: they are its final maps."""
-    from recon.mvs.stereo import map_path
+    from recon.mvs.stereo import SOURCE_MASKS, map_path, sources_path
 
     dropped = 0
     for depth in sorted((stereo / "depth_maps").glob("*.photometric.bin")):
@@ -322,7 +330,10 @@ def _drop_photometric(ctx: StageContext, stereo: Path) -> None:
         if map_path(stereo, "depth", name, "geometric").exists():
             depth.unlink()
             map_path(stereo, "normal", name, "photometric").unlink(missing_ok=True)
+            sources_path(stereo, name).unlink(missing_ok=True)
             dropped += 1
+    with contextlib.suppress(OSError):  # the stage's own folder, left while it holds a view's masks
+        (stereo / SOURCE_MASKS).rmdir()
     if dropped:
         ctx.log.info("mvs: photometric maps of %d views dropped (mvs.keep_photometric keeps them)", dropped)
 

@@ -1,5 +1,5 @@
 """A lean workspace: intermediates no later stage reads are dropped when their stage completes
-(mvs's photometric maps, COLMAP's fused.ply.vis), the cache still checks out, and options keep them.
+(mvs's photometric maps and source masks, COLMAP's fused.ply.vis), the cache still checks out, and options keep them.
 
 Sizes count each file once (the item store hard-links the maps it keeps) and leave the photos out
 (ingest links them). A lean workspace's depth and normal maps take at most 26 bytes per working
@@ -89,7 +89,7 @@ def test_a_full_run_drops_the_intermediates_and_stays_small(lean, small_scene):
     stereo = lean / "dense" / "stereo"
     views = len(list((lean / "dense" / "images").iterdir()))
     assert len(list((stereo / "depth_maps").glob("*.geometric.bin"))) == views
-    assert not list(stereo.glob("*/*.photometric.bin"))
+    assert not list(stereo.glob("*/*.photometric.*")) and not (stereo / "source_masks").exists()
     assert not [p for p in everything if p.name.endswith(".vis") or ".tmp" in p.name]  # COLMAP's fused.ply.vis
     pixels = working_pixels(lean)
     maps = [p for p in everything if is_map(p)]
@@ -113,6 +113,7 @@ def test_the_keep_options_keep_them(lean, small_scene, tmp_path):
     stereo = ws / "dense" / "stereo"
     names = [p.name.removesuffix(".geometric.bin") for p in (stereo / "depth_maps").glob("*.geometric.bin")]
     assert names and all((stereo / kind / f"{n}.photometric.bin").is_file() for kind in MAPS for n in names)
+    assert all((stereo / "source_masks" / f"{n}.photometric.npz").is_file() for n in names)
     assert (ws / "dense" / "fused.ply.vis").stat().st_size > 0
     maps = [p for p in unique_files(stereo.resolve()) if is_map(p)]  # this run's mvs output alone
     assert size(maps) >= KEPT_OUTPUT_BYTES * working_pixels(ws)

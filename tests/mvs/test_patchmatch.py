@@ -214,6 +214,28 @@ def test_the_geometric_pass_leaves_the_photometric_costs_the_filter_tests(plane)
     assert np.median(combined.cost - photometric.cost) > 0.03  # the term taken out was not nothing
 
 
+def test_the_geometric_pass_can_keep_the_photometric_source_masks(plane):
+    """With keep_views each pixel chooses between the source the photometric pass chose for it (here the
+    second for all) and the source whose depth map best confirms its plane, never among the others."""
+    images, cams, depths, normal = plane
+    rng = np.random.default_rng(2)
+    start = (depths[0] * rng.uniform(0.97, 1.03, depths[0].shape)).astype(np.float32)
+    inner = (slice(20, -20), slice(20, -20))
+
+    def geometric(src_depths, keep_views):
+        second = pm.State(start, normal, np.zeros_like(start), np.full(start.shape, 0b010, np.int64))
+        return pm.geometric_depth(_checked(images, cams, src_depths), second, (1.0, 4.0), OPTIONS, seed=0,
+                                  keep_views=keep_views)
+
+    off = [d * 1.5 for d in depths[1:]]  # reprojection errors beyond geometric_max_error: none confirms
+    assert (geometric(off, True).views == 0b010).all()
+    assert (geometric(off, False).views[inner] != 0b010).mean() > 0.1  # chosen again, many take another
+    confirmed = geometric([depths[1], *off[1:]], True)  # the first source's depth map confirms the plane
+    assert set(np.unique(confirmed.views)) <= {0b001, 0b010}
+    assert (confirmed.views[inner] == 0b001).mean() > 0.5
+    assert np.median(np.abs(confirmed.depth[inner] / depths[0][inner] - 1.0)) < 0.005
+
+
 def test_a_pixel_that_two_sources_see_can_pass_the_filter(plane):
     """The third source looks elsewhere: over top_k = 3 it counts as an uncorrelated window, not as
     the worst match, so the true plane still costs less than filter_max_cost (with the worst-match cost

@@ -13,7 +13,14 @@ from recon._open3d import open3d
 from recon.mvs.bench import depth_scores, prepare_synthetic
 from recon.mvs.colmap_io import read_depth_map, read_normal_map, write_map
 from recon.mvs.options import MVSOptions
-from recon.mvs.stereo import dense_stereo, geometric_view, map_path, photometric_view
+from recon.mvs.stereo import (
+    dense_stereo,
+    geometric_view,
+    map_path,
+    photometric_view,
+    read_source_masks,
+    sources_path,
+)
 from recon.mvs.views import select_problems
 from recon.synth import load_scene
 
@@ -66,6 +73,29 @@ def test_a_rerun_of_a_view_is_identical(stereo, tmp_path):
         for pass_name in ("photometric", "geometric"):
             a = map_path(dense / "stereo", kind, problem.ref, pass_name).read_bytes()
             assert map_path(tmp_path / "stereo", kind, problem.ref, pass_name).read_bytes() == a
+
+
+def test_the_geometric_pass_starts_from_the_photometric_source_masks(stereo, tmp_path):
+    """The photometric pass leaves each pixel's sources, read back only for the sources they index; the
+    geometric pass starts from them, and without them (chosen again) gives as accurate a map."""
+    root, _ = stereo
+    dense = root / "dense"
+    problem = next(p for p in select_problems(pycolmap.Reconstruction(dense / "sparse")) if p.ref == "view_002.jpg")
+    path = sources_path(dense / "stereo", problem.ref)
+    masks = read_source_masks(path, list(problem.sources))
+    depth = read_depth_map(map_path(dense / "stereo", "depth", problem.ref, "geometric"))
+    assert masks.shape == depth.shape and masks.min() > 0 and masks.max() < 1 << len(problem.sources)
+    assert read_source_masks(path, list(problem.sources)[::-1]) is None
+    assert read_source_masks(path, list(problem.sources)[1:]) is None
+    out = tmp_path / "stereo"
+    shutil.copytree(dense / "stereo", out)
+    (out / path.relative_to(dense / "stereo")).unlink()
+    geometric_view(dense, problem, MVSOptions(), out)
+    chosen = read_depth_map(map_path(out, "depth", problem.ref, "geometric"))
+    assert not np.array_equal(chosen, depth)
+    truth = load_scene(root / "scene").depth(problem.ref)
+    (kept_accuracy, kept_completeness), (accuracy, completeness) = depth_scores(depth, truth), depth_scores(chosen, truth)
+    assert kept_accuracy >= accuracy - 0.01 and kept_completeness >= completeness - 0.02
 
 
 def _flat_patch(root, name: str, size=(40, 60), margin=6) -> tuple[slice, slice]:
