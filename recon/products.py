@@ -278,7 +278,8 @@ class DepthMaps(Product):
     required = ("stereo/depth_maps",)
     publish = {"stereo": "dense/stereo"}
     describe = ("stereo/depth_maps/<image>.geometric.bin", "stereo/normal_maps/<image>.geometric.bin",
-                "stereo/{depth,normal}_maps/<image>.photometric.bin", "stereo/source_masks/<image>.photometric.npz")
+                "stereo/{depth,normal}_maps/<image>.photometric.bin",
+                "stereo/source_masks/<image>.photometric.npz")
 
     @property
     def folder(self) -> Path:

@@ -1055,9 +1055,9 @@ def geometric_depth(view: Checked, initial: State, depth_range: tuple[float, flo
     With ``options.view_subset`` and ``keep_views``, each pixel chooses its top_k among the sources of
     its mask in ``initial.views`` (the photometric pass's choice) and the source whose depth map best
     confirms its plane; without ``keep_views``, among all sources, which matches every source's window
-    at every pixel. On fountain-P11 at 1536 px
-    the pass takes 0.81 of the CPU with ``keep_views`` (0.70 with the photometric choice alone, which
-    lost more quality on the zoo's worst scenes: docs/DECISIONS.md, session 51)."""
+    at every pixel. On fountain-P11 at 1536 px the pass takes 0.81 of the CPU with ``keep_views`` (0.70
+    with the photometric choice alone, which lost more quality on the zoo's worst scenes:
+    docs/DECISIONS.md, session 51)."""
     level, src_depth = view.level, view.src_depth
     state = State(initial.depth.copy(), initial.normal.copy(), np.zeros_like(initial.cost),
                   initial.views.copy() if keep_views else np.zeros_like(initial.depth, dtype=np.int64))

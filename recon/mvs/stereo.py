@@ -132,9 +132,9 @@ def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
     maps of ``problem.ref`` against its sources' photometric depth maps; returns the depth map's path.
 
     Needs the reference's photometric maps in ``out_dir``; sources without a photometric depth map
-    (images that got no problem of their own) are left out. In the geometric pass each pixel starts with the
-    sources the photometric pass chose for it when its source masks index these sources; otherwise it
-    chooses again among all.
+    (images that got no problem of their own) are left out. In the geometric pass each pixel starts with
+    the sources the photometric pass chose for it when its source masks index these sources; otherwise
+    it chooses again among all.
     """
     _use_threads(options)
     start = time.perf_counter()

@@ -62,10 +62,9 @@ class MvsConfig(MVSOptions):
            "below. At 320x240, 0 was 0.017 below in fused F, 8 0.006: raise it for small photos",
         ge=0, le=32)
     keep_photometric: bool = opt(
-        False, "keep each view's photometric depth and normal maps (<image>.photometric.bin) and source masks "
-               "(source_masks/<image>.photometric.npz) beside its final "
-               "(geometric) ones; no later stage reads them and they double the stage's size. With it, every "
-               "view is computed afresh")
+        False, "keep each view's photometric depth and normal maps (<image>.photometric.bin) and source "
+               "masks (source_masks/<image>.photometric.npz) beside its final (geometric) ones; no later stage "
+               "reads them and they double the stage's size. With it, every view is computed afresh")
 
 
 def backend_of(cfg: MvsConfig) -> str:
@@ -271,8 +270,9 @@ def _link_photometric(plan: _Plan, stereo: Path, name: str, own: bool) -> bool:
     if not plan.stores["photometric"].link(item.key, depth):
         return False
     if own:
-        sources_path(stereo, name).parent.mkdir(exist_ok=True)
-        plan.stores["photometric_sources"].link(item.key, sources_path(stereo, name))
+        sources = sources_path(stereo, name)
+        sources.parent.mkdir(exist_ok=True)
+        plan.stores["photometric_sources"].link(item.key, sources)
         normals = np.load(normal, allow_pickle=False).astype(np.float32)
         normals /= np.maximum(np.linalg.norm(normals, axis=2, keepdims=True), 1e-12)
         write_map(map_path(stereo, "normal", name, "photometric"), normals)

@@ -1,5 +1,6 @@
 """A lean workspace: intermediates no later stage reads are dropped when their stage completes
-(mvs's photometric maps and source masks, COLMAP's fused.ply.vis), the cache still checks out, and options keep them.
+(mvs's photometric maps and source masks, COLMAP's fused.ply.vis), the cache still checks out, and
+options keep them.
 
 Sizes count each file once (the item store hard-links the maps it keeps) and leave the photos out
 (ingest links them). A lean workspace's depth and normal maps take at most 26 bytes per working
