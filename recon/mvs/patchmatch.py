@@ -62,7 +62,8 @@ MAX_COST = 2.0
 #: the worst match, so that a wrong plane carried out of every source's image does not beat the true
 #: plane seen by few. The filter leaves these terms out (:func:`seen_cost`)
 UNSEEN_COST = 1.0
-ALL_VIEWS, SELECT_VIEWS, KEEP_VIEWS, KEEP_AND_CONFIRMING = 0, 1, 2, 3  # view-mask modes of evaluate()
+#: the view-mask modes of :func:`evaluate`
+ALL_VIEWS, SELECT_VIEWS, KEEP_VIEWS, KEEP_AND_CONFIRMING, NARROW_VIEWS = 0, 1, 2, 3, 4
 _MIN_COS = 0.05  # hypotheses whose plane is seen at a grazing angle (|cos| below this) are rejected
 NO_NORMALS = np.zeros((0, 3))  # no normals known beforehand (propagate_and_refine's ``normals``)
 
@@ -468,8 +469,7 @@ def hypothesis_cost(x, y, depth, n0, n1, n2, mask, weights, centred, ref_var, wi
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def remove_geometric_term(ref, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max, window,
-                          sigma_spatial, sigma_color, min_var, depth, normal, views, cost):
+def remove_geometric_term(dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max, depth, normal, views, cost):
     """Turn the geometric-consistency costs of the current hypotheses (``cost``, as :func:`evaluate`
     and the sweeps leave them with ``src_depth``) into their photometric costs over each pixel's
     view mask, by subtracting the mean reprojection term: what evaluate(KEEP_VIEWS) without the
@@ -478,20 +478,17 @@ def remove_geometric_term(ref, dims, kinv, A, b, src_depth, M, c, geo_weight, ge
 
     Exact only while each pixel's mask holds at most top_k sources, so that its cost is the plain
     mean over the mask (masks chosen by SELECT_VIEWS); pixels whose window is untextured or whose
-    plane is seen edge-on get MAX_COST, as evaluate gives them.
+    plane is seen edge-on get MAX_COST, as evaluate gives them. An untextured window is known by its
+    cost: evaluate gives it the worst cost, MAX_COST plus the capped term, and the sweeps skip it.
     """
-    height, width = ref.shape
-    n = window[2] * window[2]
+    height, width = cost.shape
+    worst = np.float32(MAX_COST + geo_weight * geo_max)  # (as the float32 cost map holds it)
     for y in prange(height):
-        weights = np.empty(n)
-        centred = np.empty(n)
         for x in range(width):
             n0, n1, n2 = normal[y, x, 0], normal[y, x, 1], normal[y, x, 2]
             rx, ry, rz = _ray(kinv, x, y)
             cos = n0 * rx + n1 * ry + n2 * rz
-            if (cos > -_MIN_COS * math.sqrt(rx * rx + ry * ry + rz * rz)
-                    or reference_patch(ref, x, y, window, sigma_spatial, sigma_color, weights,
-                                       centred) < min_var):
+            if cost[y, x] >= worst or cos > -_MIN_COS * math.sqrt(rx * rx + ry * ry + rz * rz):
                 cost[y, x] = MAX_COST
                 continue
             m0, m1, m2 = _plane_row(kinv, depth[y, x] * cos, n0, n1, n2)
@@ -621,14 +618,28 @@ def initialise(depth, normal, kinv, dmin, dmax, key):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def upsample(depth_coarse, normal_coarse, kinv_coarse, kinv, depth, normal):
-    """Fine hypotheses from coarse ones: each fine pixel takes its coarse pixel's plane."""
+def upsample(depth_coarse, normal_coarse, views_coarse, kinv_coarse, kinv, depth, normal, views):
+    """Fine hypotheses from coarse ones: each fine pixel takes its coarse pixel's plane, and as its
+    view mask the union of the masks of the (up to four) coarse pixels nearest its centre: the sources
+    chosen there, with those of the neighbour across the nearer edge of its coarse pixel, where a
+    different surface may begin."""
     height, width = depth.shape
     hc, wc = depth_coarse.shape
     for y in prange(height):
-        yc = min(int((y + 0.5) * hc / height), hc - 1)
+        fy = (y + 0.5) * hc / height
+        yc = min(int(fy), hc - 1)
+        y0 = max(int(fy - 0.5), 0)
+        y1 = min(int(fy + 0.5), hc - 1)
         for x in range(width):
-            xc = min(int((x + 0.5) * wc / width), wc - 1)
+            fx = (x + 0.5) * wc / width
+            xc = min(int(fx), wc - 1)
+            x0 = max(int(fx - 0.5), 0)
+            x1 = min(int(fx + 0.5), wc - 1)
+            mask = 0
+            for yy in range(y0, y1 + 1):
+                for xx in range(x0, x1 + 1):
+                    mask |= views_coarse[yy, xx]
+            views[y, x] = mask
             n0 = normal_coarse[yc, xc, 0]
             n1 = normal_coarse[yc, xc, 1]
             n2 = normal_coarse[yc, xc, 2]
@@ -653,7 +664,8 @@ def evaluate(ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max, 
     SELECT_VIEWS: over all sources, then each mask becomes the pixel's top_k best sources for this
     hypothesis (later sweeps match the pixel against those only); KEEP_VIEWS: over each pixel's mask;
     KEEP_AND_CONFIRMING (with ``src_depth``): over each pixel's mask and the source whose depth map best
-    confirms the hypothesis (:func:`_confirming_source`), then the mask becomes the top_k best of those.
+    confirms the hypothesis (:func:`_confirming_source`), then the mask becomes the top_k best of those;
+    NARROW_VIEWS: over each pixel's mask, then the mask becomes its top_k best.
     """
     height, width = ref.shape
     n = window[2] * window[2]
@@ -679,7 +691,7 @@ def evaluate(ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max, 
                                          normal[y, x, 2], views[y, x], weights, centred, ref_var, window,
                                          kinv, A, b, srcs, dims, src_depth, M, c, geo_weight, geo_max,
                                          top_k, min_var, costs, scratch)
-            if views_mode == SELECT_VIEWS or views_mode == KEEP_AND_CONFIRMING:
+            if views_mode != ALL_VIEWS and views_mode != KEEP_VIEWS:
                 views[y, x] = _best_views(costs, views[y, x], top_k)
 
 
@@ -996,7 +1008,10 @@ def photometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, 
 
     The coarsest level starts from random planes and matches every pixel against all sources, with
     random refinement candidates; each finer level starts from the coarser planes and (with
-    ``options.view_subset``) matches each pixel against its top_k sources only. The finest level
+    ``options.view_subset``) matches each pixel against its top_k sources only, chosen among those of
+    the nearest coarse pixels (:func:`upsample`): the level under the coarsest chooses among all, as
+    the coarsest keeps all, and the finer ones spare matching every source at every pixel (on
+    fountain-P11 at 1536 px, 0.79 of the pass's CPU: docs/DECISIONS.md, session 52). The finest level
     propagates from the near regions only. With ``ground`` (the ground's unit normal, world frame;
     :mod:`recon.mvs.ground_normal`), every level's refinement also tests each pixel's plane turned to it.
     """
@@ -1013,12 +1028,12 @@ def photometric_depth(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, 
                        sweep_key(seed, 0x7FFFF))
             iterations, perturbation = options.iterations, options.perturbation
         else:
-            upsample(state.depth, state.normal, previous.geometry.kinv, level.geometry.kinv,
-                     fresh.depth, fresh.normal)
+            upsample(state.depth, state.normal, state.views, previous.geometry.kinv, level.geometry.kinv,
+                     fresh.depth, fresh.normal, fresh.views)
             iterations = options.fine_iterations if lvl == 0 else options.upper_iterations
             perturbation = options.perturbation * 0.25
         subset = state is not None and options.view_subset
-        evaluate_state(level, fresh, options, SELECT_VIEWS if subset else ALL_VIEWS)
+        evaluate_state(level, fresh, options, NARROW_VIEWS if subset else ALL_VIEWS)
         sweeps(level, fresh, options, depth_range, iterations, perturbation,
                random_candidates=state is None, far_regions=lvl > 0, seed=seed, first_sweep=sweep,
                normals=normals)
@@ -1068,11 +1083,8 @@ def geometric_depth(view: Checked, initial: State, depth_range: tuple[float, flo
            first_sweep=1000, src_depth=src_depth)
     if options.view_subset:
         g = level.geometry
-        window, sigma_spatial, sigma_color, min_var, _ = _kernel_params(options)
-        remove_geometric_term(level.ref, level.dims, g.kinv, g.A, g.b, src_depth, g.M, g.c,
-                              options.geometric_weight, options.geometric_max_error, window,
-                              sigma_spatial, sigma_color, min_var, state.depth, state.normal,
-                              state.views, state.cost)
+        remove_geometric_term(level.dims, g.kinv, g.A, g.b, src_depth, g.M, g.c, options.geometric_weight,
+                              options.geometric_max_error, state.depth, state.normal, state.views, state.cost)
     else:  # each pixel's cost is the mean of its best top_k among all sources: match again
         evaluate_state(level, state, options, KEEP_VIEWS)
     return state

@@ -78,7 +78,7 @@ def camera_record(view: ViewCamera, photo=None) -> dict:
 #: then) makes every view's photometric maps again. A new final version makes only its final maps again
 #: (the geometric pass, the filter, the background clearing and the fill), from the stored
 #: photometric maps. The mvs stage's own version changes with either.
-PHOTOMETRIC_VERSION = 14
+PHOTOMETRIC_VERSION = 16
 FINAL_VERSION = 3
 
 #: the options only the geometric pass, the filter, the silhouette check, the background clearing and the fill

@@ -301,6 +301,57 @@ def test_a_surface_that_one_source_sees_is_found_where_the_others_see_something_
     assert found["best"] > 0.95 and found["mean of three"] < 0.8
 
 
+def test_a_fine_pixel_starts_with_the_sources_of_its_nearest_coarse_pixels():
+    """Above the level under the coarsest, a pixel chooses its sources among those its coarse pixel
+    and the neighbours across the nearer edges chose (not among all: matching every source at every
+    pixel was a fifth of the photometric pass)."""
+    hc, wc = 3, 4
+    bit = np.arange(hc * wc).reshape(hc, wc)
+    views_coarse = (1 << bit).astype(np.int64)
+    K = np.array([[50.0, 0, 4], [0, 50.0, 3], [0, 0, 1]])
+    coarse_kinv = np.linalg.inv(np.diag([0.5, 0.5, 1.0]) @ K)
+    depth = np.zeros((2 * hc, 2 * wc), np.float32)
+    normal = np.zeros((2 * hc, 2 * wc, 3), np.float32)
+    views = np.zeros((2 * hc, 2 * wc), np.int64)
+    coarse_normal = np.broadcast_to(np.float32([0, 0, -1]), (hc, wc, 3)).copy()
+    pm.upsample(np.ones((hc, wc), np.float32), coarse_normal, views_coarse, coarse_kinv, np.linalg.inv(K),
+                depth, normal, views)
+    assert views[0, 0] == 1 << bit[0, 0]  # the image's corner: no neighbour
+    assert views[1, 1] == sum(1 << b for b in bit[:2, :2].ravel())  # the four nearest
+    assert views[0, 3] == (1 << bit[0, 1]) | (1 << bit[0, 2])  # its coarse pixel and the one to the right
+    own = 1 << bit[np.arange(2 * hc)[:, None] // 2, np.arange(2 * wc)[None, :] // 2]
+    assert np.all(views & own)
+    assert np.allclose(depth, 1.0) and np.allclose(normal[..., 2], -1.0)
+
+
+def test_narrowed_sources_are_chosen_among_the_mask_only(plane):
+    images, cams, depths, normal = plane
+    elsewhere, _, _, _ = _plane_scene(seed=5)
+    level = pm.make_level(images[0], [images[1], elsewhere[2], elsewhere[3]], cams[0], cams[1:], 1.0)
+    inner = (slice(12, -12), slice(24, -12))
+    chosen = {}
+    for mode in (pm.SELECT_VIEWS, pm.NARROW_VIEWS):
+        state = pm.State(depths[0].copy(), normal.copy(), np.zeros_like(depths[0]),
+                         np.full(depths[0].shape, 0b110, np.int64))
+        pm.evaluate_state(level, state, OPTIONS, mode)
+        chosen[mode] = state.views[inner]
+    assert np.mean(chosen[pm.SELECT_VIEWS] == 0b001) > 0.95  # the one source that sees the plane
+    assert np.isin(chosen[pm.NARROW_VIEWS], [0b010, 0b100]).all()
+
+
+def test_a_surface_that_one_source_sees_is_found_at_the_finest_of_three_levels(plane):
+    images, cams, depths, normal = plane
+    elsewhere, _, _, _ = _plane_scene(seed=5)
+    options = dataclasses.replace(OPTIONS, pyramid_min_size=24)
+    assert pm.pyramid_levels(images[0].shape, options) == 3
+    state = pm.photometric_depth(images[0], [elsewhere[2], images[1], elsewhere[3]], cams[0],
+                                 [cams[2], cams[1], cams[3]], (1.0, 4.0), options, seed=0)
+    inner = (slice(12, -12), slice(24, -12))
+    found = np.abs(state.depth - depths[0])[inner] < 0.01 * depths[0][inner]
+    assert found.mean() > 0.9
+    assert np.mean(state.views[inner][found] == 0b010) > 0.95
+
+
 def test_a_neighbours_source_travels_with_its_plane(plane):
     """Above the coarsest level each pixel is matched against the source chosen for its upsampled plane.
     Where that plane was wrong, so may the source be: here the right part of the reference holds a plane

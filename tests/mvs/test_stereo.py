@@ -1,6 +1,7 @@
 """End to end: depth maps of a synthetic scene against its ground truth, and COLMAP's fusion of them."""
 
 import json
+import os
 import shutil
 from dataclasses import replace
 
@@ -10,18 +11,20 @@ import pycolmap
 import pytest
 
 from recon._open3d import open3d
+from recon.mvs import stereo as stereo_module
 from recon.mvs.bench import depth_scores, prepare_synthetic
 from recon.mvs.colmap_io import read_depth_map, read_normal_map, write_map
 from recon.mvs.options import MVSOptions
 from recon.mvs.stereo import (
     dense_stereo,
     geometric_view,
+    load_grey,
     map_path,
     photometric_view,
     read_source_masks,
     sources_path,
 )
-from recon.mvs.views import select_problems
+from recon.mvs.views import ViewCamera, select_problems
 from recon.synth import load_scene
 
 
@@ -36,6 +39,39 @@ def _scores(root, names):
     scene = load_scene(root / "scene")
     return [depth_scores(read_depth_map(map_path(root / "dense" / "stereo", "depth", name, "geometric")),
                          scene.depth(name)) for name in names]
+
+
+def test_an_image_is_decoded_once_per_size_and_again_once_rewritten(tmp_path, monkeypatch):
+    path = tmp_path / "a.png"
+    rng = np.random.default_rng(3)
+    first, second = rng.integers(0, 256, (2, 60, 80), dtype=np.uint8)
+    cv2.imwrite(str(path), first)
+    camera = ViewCamera("a.png", np.diag([70.0, 70.0, 1.0]), np.eye(3), np.zeros(3), 80, 60)
+    decoded = []
+    imread = cv2.imread
+    monkeypatch.setattr(stereo_module.cv2, "imread", lambda *args: decoded.append(args[0]) or imread(*args))
+
+    half, cam = load_grey(path, camera, (40, 30))
+    again, _ = load_grey(path, camera, (40, 30))
+    full, _ = load_grey(path, camera, (80, 60))
+    assert len(decoded) == 2  # once at each size
+    expected = cv2.resize(first, (40, 30), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+    assert np.array_equal(half, expected) and np.array_equal(again, expected)
+    assert np.array_equal(full, first.astype(np.float32) / 255.0)
+    assert np.allclose(cam.K, np.diag([35.0, 35.0, 1.0]))
+    half[:] = 0  # the caller's copy: the next read is unchanged
+    assert np.array_equal(load_grey(path, camera, (40, 30))[0], expected)
+
+    cv2.imwrite(str(path), second)  # rewritten (the undistortion run again): decoded again
+    stat = path.stat()
+    os.utime(path, ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+    assert np.array_equal(load_grey(path, camera, (80, 60))[0], second.astype(np.float32) / 255.0)
+    assert len(decoded) == 3
+
+    with pytest.raises(ValueError, match="a.png: image is 80x60, its camera 90x60"):
+        load_grey(path, replace(camera, width=90), (40, 30))
+    with pytest.raises(FileNotFoundError, match="cannot read image"):
+        load_grey(tmp_path / "missing.png", camera, (40, 30))
 
 
 def test_depth_maps_are_accurate_and_dense(stereo):
