@@ -477,9 +477,10 @@ def remove_geometric_term(dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max
     photometric cost; matching is most of the work of a pass).
 
     Exact only while each pixel's mask holds at most top_k sources, so that its cost is the plain
-    mean over the mask (masks chosen by SELECT_VIEWS); pixels whose window is untextured or whose
-    plane is seen edge-on get MAX_COST, as evaluate gives them. An untextured window is known by its
-    cost: evaluate gives it the worst cost, MAX_COST plus the capped term, and the sweeps skip it.
+    mean over the mask (masks chosen by SELECT_VIEWS or KEEP_AND_CONFIRMING); pixels whose window is
+    untextured or whose plane is seen edge-on get MAX_COST, as evaluate gives them. An untextured window
+    is known by its cost: evaluate gives it the worst cost, MAX_COST plus the capped term, and the
+    sweeps skip it.
     """
     height, width = cost.shape
     worst = np.float32(MAX_COST + geo_weight * geo_max)  # (as the float32 cost map holds it)
