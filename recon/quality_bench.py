@@ -39,6 +39,12 @@ depth maps miss. At session 45 the wide scenes' clouds were accurate and incompl
   both PSNRs: on session 45's turntable_black workspace the 3.5 % of its surface where the mesh lay more
   than 0.4 % off showed 16.4 dB and made 72 % of the texture's squared error; where the mesh lay within
   0.2 % (91.4 %), texture 35.39 dB, vertex colours 34.33.
+- Where a scene has glossy parts, its held-out photos show highlights that move from view to view, and
+  no texture (one colour per surface point) shows them; the scene ships each held-out view rendered
+  without them (recon.synth.dataset: ``holdout/diffuse``). ``psnr_ceiling`` is that rendering's PSNR
+  against the photo over its surface: what a texture holding the surface's true colours, on the true
+  shape, scores. Beside it, the textured and the vertex-coloured mesh against that rendering
+  (``psnr_diffuse``, ``psnr_vertex_colours_diffuse``): how near the texture comes to those colours.
 - Coverage is the share of the held-out views' true-surface pixels (ground-truth depth > 0; in a
   masked scene, those of the masked object) that the textured mesh covers.
 - A scene whose pipeline fails counts as F = 0 and coverage 0 in the mean and the worst (its error
@@ -104,7 +110,8 @@ def holdout_texture(ws: Path, scene) -> dict:
     """Masked PSNR of the textured and the vertex-coloured mesh and the texture's coverage, averaged over
     the scene's held-out views at their true poses; both PSNRs again over the pixels where the textured
     mesh lies within 0.2 % of the extent of the true depth, and those pixels' share of the surface
-    (``true_shape``); and the PSNRs with the views placed in the model (:func:`placed_holdout`; module doc)."""
+    (``true_shape``); and the PSNRs with the views placed in the model (:func:`placed_holdout`); for a scene
+    with highlights, both PSNRs against its held-out views' rendering without them (module doc)."""
     import trimesh
     from PIL import Image
 
@@ -119,9 +126,11 @@ def holdout_texture(ws: Path, scene) -> dict:
     tolerance = float(TAUS[0]) * scene.extent
     psnr: dict[str, list[float]] = {k: [] for k in meshes}
     on_shape: dict[str, list[float]] = {k: [] for k in meshes}
+    vs_diffuse: dict[str, list[float]] = {k: [] for k in meshes}
     coverage, density, shape = [], [], []
     for name, cam in scene.cameras(holdout=True).items():
         truth = np.asarray(Image.open(scene.holdout_images_dir / name).convert("RGB"))
+        diffuse = _diffuse_holdout(scene, name)
         depth = scene.depth(name)
         surface = holdout_surface(scene, name, depth)
         density.append(vertices_per_pixel(np.asarray(meshes["vertex_colours"].vertices), cam, depth, surface,
@@ -133,6 +142,8 @@ def holdout_texture(ws: Path, scene) -> dict:
             image, mask = render_rays(mesh, *rays)
             if (mask & surface).any():  # no PSNR where the mesh shows nothing of the surface
                 psnr[key].append(masked_psnr(image, truth, mask & surface))
+                if diffuse is not None:
+                    vs_diffuse[key].append(masked_psnr(image, diffuse, mask & surface))
             if right.any():
                 on_shape[key].append(masked_psnr(image, truth, right))
             if key == "texture":
@@ -144,6 +155,9 @@ def holdout_texture(ws: Path, scene) -> dict:
     if on_shape["texture"]:
         out |= {"psnr_true_shape": float(np.mean(on_shape["texture"])),
                 "psnr_vertex_colours_true_shape": float(np.mean(on_shape["vertex_colours"]))}
+    if vs_diffuse["texture"]:
+        out |= {"psnr_diffuse": float(np.mean(vs_diffuse["texture"])),
+                "psnr_vertex_colours_diffuse": float(np.mean(vs_diffuse["vertex_colours"]))}
     return out | placed
 
 
@@ -227,6 +241,31 @@ def holdout_surface(scene, name: str, depth: np.ndarray) -> np.ndarray:
     if scene.masked:
         surface &= load_mask(scene.holdout_masks_dir, name, surface.shape)
     return surface
+
+
+def texture_ceiling(scene) -> dict:
+    """For a scene with highlights (its held-out views rendered without them ship with it), ``psnr_ceiling``:
+    the mean PSNR of those renderings against the held-out photos over their surface, what a texture of the
+    surface's true colours on the true shape scores (module doc); for any other scene, nothing."""
+    from PIL import Image
+
+    from recon.eval.texture import masked_psnr
+
+    psnr = []
+    for name in scene.cameras(holdout=True):
+        diffuse = _diffuse_holdout(scene, name)
+        if diffuse is not None:
+            truth = np.asarray(Image.open(scene.holdout_images_dir / name).convert("RGB"))
+            psnr.append(masked_psnr(diffuse, truth, holdout_surface(scene, name, scene.depth(name))))
+    return {"psnr_ceiling": float(np.mean(psnr))} if psnr else {}
+
+
+def _diffuse_holdout(scene, name: str) -> np.ndarray | None:
+    """Held-out view ``name`` rendered without highlights (RGB), where the scene ships it."""
+    from PIL import Image
+
+    path = scene.holdout_diffuse_dir / name
+    return np.asarray(Image.open(path).convert("RGB")) if path.is_file() else None
 
 
 def holdout_seen_twice(scene) -> float:
@@ -379,7 +418,7 @@ def scene_figures(ws: Path, scene) -> dict:
     for key in ("fused", "mesh"):
         row[key] = ({f"F@{t}": figures[key][f"fscore@{t}"] / 100 for t in TAUS}
                     | {part: figures[key][part] / 100 for part in parts} if key in figures else {})
-    return row | holdout_texture(ws, scene)
+    return row | holdout_texture(ws, scene) | texture_ceiling(scene)
 
 
 def summary(rows: list[dict]) -> dict:
@@ -388,11 +427,13 @@ def summary(rows: list[dict]) -> dict:
     cols["coverage"] = [r.get("coverage", 0.0) for r in rows]
     cols["holdout_seen_twice"] = [r["holdout_seen_twice"] for r in rows if "holdout_seen_twice" in r]
     for key in ("psnr", "psnr_vertex_colours", "psnr_placed", "psnr_vertex_colours_placed", "true_shape",
-                "psnr_true_shape", "psnr_vertex_colours_true_shape"):
+                "psnr_true_shape", "psnr_vertex_colours_true_shape", "psnr_ceiling", "psnr_diffuse",
+                "psnr_vertex_colours_diffuse"):
         cols[key] = [r[key] for r in rows if key in r]
     for gain, texture, vertex in (("psnr_gain", "psnr", "psnr_vertex_colours"),
                                   ("psnr_gain_placed", "psnr_placed", "psnr_vertex_colours_placed"),
-                                  ("psnr_gain_true_shape", "psnr_true_shape", "psnr_vertex_colours_true_shape")):
+                                  ("psnr_gain_true_shape", "psnr_true_shape", "psnr_vertex_colours_true_shape"),
+                                  ("psnr_gain_diffuse", "psnr_diffuse", "psnr_vertex_colours_diffuse")):
         cols[gain] = [r[texture] - r[vertex] for r in rows if texture in r]
     return {"mean": {k: float(np.mean(v)) for k, v in cols.items() if v},
             "worst": {k: float(np.min(v)) for k, v in cols.items() if v}, "failed": [r["scene"] for r in rows
@@ -499,6 +540,16 @@ def print_table(rows: list[dict], summ: dict) -> None:
         for r in on_shape:
             print(f"{r['scene']:<16}{r['true_shape']:>7.3f}{r['psnr_true_shape']:>8.2f}"
                   f"{r['psnr_vertex_colours_true_shape']:>7.2f}{r['psnr_true_shape'] - r['psnr_vertex_colours_true_shape']:>+7.2f}")
+    glossy = [r for r in rows if "psnr_diffuse" in r and "psnr_ceiling" in r]
+    if glossy:
+        print("\nscenes with highlights, held-out views at their true poses: the photos against their rendering "
+              "without highlights (ceil: what a texture of the true colours on the true shape scores), and the "
+              "texture and vertex colours against that rendering")
+        print(f"{'scene':<16}{'ceil':>7}{'texPSNR':>8}{'vcPSNR':>7}{'texDif':>7}{'vcDif':>7}{'tex-vc':>7}")
+        for r in glossy:
+            print(f"{r['scene']:<16}{r['psnr_ceiling']:>7.2f}{r['psnr']:>8.2f}{r['psnr_vertex_colours']:>7.2f}"
+                  f"{r['psnr_diffuse']:>7.2f}{r['psnr_vertex_colours_diffuse']:>7.2f}"
+                  f"{r['psnr_diffuse'] - r['psnr_vertex_colours_diffuse']:>+7.2f}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -21,6 +21,9 @@ and for the zoo's scenes (recon.synth.zoo) that have them::
                                      static scene behind it
     gt/geotags.json                  the GPS tag (lat, lon, alt, horizontal_error) written into each
                                      regular photo's EXIF (recon.synth.geotags), for scenes with GPS
+    holdout/diffuse/<image name>     each hold-out view rendered without highlights, for scenes with
+                                     glossy parts: the surface's own colour, the most a texture (one
+                                     colour per surface point) can show of that view
 
 ``extent`` is the diagonal of the axis-aligned bounding box of the surface seen by the regular
 views, i.e. of all points back-projected from their ground-truth depth maps (the parts of the ground
@@ -131,6 +134,10 @@ class SceneInfo:
         return self.gt_dir / "object.ply"
 
     @property
+    def holdout_diffuse_dir(self) -> Path:
+        return self.root / "holdout" / "diffuse"
+
+    @property
     def transient_dir(self) -> Path:
         return self.gt_dir / "transient"
 
@@ -188,10 +195,13 @@ def write_scene(out_dir: str | Path, scene: Scene, regular: dict[str, Camera], h
     renderer = Renderer(scene, capture.background)
     with_transient = Renderer(assemble([*scene.parts, *capture.transient]), capture.background) \
         if capture.transient and capture.transient_views else None
+    diffuse = Renderer(assemble([dataclasses.replace(p, gloss=0.0) for p in scene.parts]), capture.background) \
+        if held and any(p.gloss for p in scene.parts) else None
     masked_ids = [i for i, p in enumerate(scene.parts) if p.name in capture.masked]
     gt = out / "gt"
     _remove_previous(out)
-    for folder in (out / "images", gt / "depth", gt / "normal", *([out / "holdout" / "images"] if held else [])):
+    for folder in (out / "images", gt / "depth", gt / "normal", *([out / "holdout" / "images"] if held else []),
+                   *([out / "holdout" / "diffuse"] if diffuse else [])):
         folder.mkdir(parents=True, exist_ok=True)
     lo = np.full(3, np.inf)
     hi = np.full(3, -np.inf)
@@ -210,6 +220,8 @@ def write_scene(out_dir: str | Path, scene: Scene, regular: dict[str, Camera], h
             quality = capture.jpeg_quality if cams is regular else JPEG_QUALITY
             _write_image(root / "images" / image_name, rgb, cam, image_format, quality,
                          capture.geotags.get(image_name) if cams is regular else None)
+            if cams is held and diffuse is not None:
+                _write_image(root / "diffuse" / image_name, diffuse.render(cam)[0], cam, image_format, quality)
             np.save(gt / "depth" / f"{stem}.npy", depth)
             np.save(gt / "normal" / f"{stem}.npy", normal)
             if masked_ids:
@@ -265,7 +277,8 @@ def _remove_previous(out: Path) -> None:
     patterns = ("gt/scene.json", "gt/cameras.json", "gt/holdout_cameras.json", "gt/mesh.ply", "gt/depth/*.npy",
                 "gt/normal/*.npy", "images/view_*.jpg", "images/view_*.png", "holdout/images/holdout_*.jpg",
                 "holdout/images/holdout_*.png", "gt/object.ply", "gt/transient/*.png", "masks/view_*.png",
-                "holdout/masks/holdout_*.png", "gt/geotags.json")
+                "holdout/masks/holdout_*.png", "gt/geotags.json", "holdout/diffuse/holdout_*.jpg",
+                "holdout/diffuse/holdout_*.png")
     for pattern in patterns:
         for f in out.glob(pattern):
             f.unlink()

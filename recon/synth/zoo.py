@@ -92,8 +92,8 @@ def zoo_digest(name: str) -> str:
     for part in (*setup.parts, *setup.transient):
         for array in (part.vertices, part.faces, part.uv, part.texture.levels[0]):
             digest.update(np.ascontiguousarray(array).tobytes())
-        if part.gloss:
-            digest.update(repr(part.gloss).encode())
+        if part.gloss:  # a glossy scene's rendering holds diffuse hold-out views: one made before them is stale
+            digest.update(repr((part.gloss, "holdout/diffuse")).encode())
     background = setup.background
     lens = (setup.radial,) if any(setup.radial) else ()  # none for a pinhole: earlier renderings stay valid
     digest.update(repr((setup.layout, setup.views, setup.holdout, setup.focal_factor, setup.effects,

@@ -71,6 +71,13 @@ def test_fewer_views_leave_less_surface_seen_twice(tmp_path):
     assert quality_bench.f_ceiling(1.0) == 1.0 and quality_bench.f_ceiling(0.8) == pytest.approx(1.6 / 1.8)
 
 
+def test_the_texture_ceiling_is_measured_where_the_held_out_photos_show_highlights(tmp_path):
+    glossy = quality_bench.scene_for("glossy", tmp_path / "glossy" / "scene", 160, 120, 6)
+    matte = quality_bench.scene_for("turntable_black", tmp_path / "matte" / "scene", 80, 60, 3)
+    assert 15.0 < quality_bench.texture_ceiling(glossy)["psnr_ceiling"] < 40.0  # the highlights cost
+    assert quality_bench.texture_ceiling(matte) == {}
+
+
 def test_completeness_by_views_splits_the_fused_clouds_completeness_by_how_many_views_see_the_surface():
     points = np.column_stack([np.arange(8.0), np.zeros(8), np.zeros(8)])
     counts = np.array([1, 2, 2, 3, 4, 5, 7, 9])
@@ -108,6 +115,19 @@ def test_the_table_prints_maxf_seen2_and_vertex_density_where_they_were_measured
     assert lines[-1] == shape  # b was not measured there
     gain = next(line for line in lines if "where the mesh lies within 0.2 % of the surface" in line)
     assert gain.endswith("mean +1.06 dB, worst +1.06 dB")
+
+
+def test_the_table_prints_the_texture_ceiling_of_a_scene_with_highlights_only(capsys):
+    rows = [_row("a", 0.9, 0.8, 26.11, 24.51, 0.98) | {"psnr_ceiling": 27.07, "psnr_diffuse": 29.5,
+                                                      "psnr_vertex_colours_diffuse": 25.0},
+            _row("b", 0.7, 0.6, 24.0, 23.0, 0.95)]
+    summ = quality_bench.summary(rows)
+    assert summ["mean"]["psnr_gain_diffuse"] == pytest.approx(4.5) and summ["mean"]["psnr_ceiling"] == 27.07
+    quality_bench.print_table(rows, summ)
+    lines = capsys.readouterr().out.splitlines()
+    head = next(i for i, line in enumerate(lines) if line.startswith("scenes with highlights"))
+    assert lines[head + 2].split() == ["a", "27.07", "26.11", "24.51", "29.50", "25.00", "+4.50"]
+    assert len(lines) == head + 3  # b has none
 
 
 def test_compare_prints_both_runs_and_counts_moves_beyond_the_seed(tmp_path, capsys):
