@@ -28,6 +28,14 @@ class MVSOptions:
     window_step: int = opt(2, "sampling stride inside the matching window (px); 2 reads a quarter of its pixels", ge=1, le=4)
     sigma_color: float = opt(0.1, "bilateral weight: intensity scale (intensities in [0, 1]); 0.1 rather than 0.2 keeps a window's weight on the pixels like its centre (zoo at 320x240: fused and mesh F@0.2 % up, docs/DECISIONS.md)", gt=0.0)
     sigma_spatial: float = opt(0.0, "bilateral weight: distance scale (px); 0 means the window radius", ge=0.0)
+    narrow_sigma: float = opt(0.0, "cpu: the bilateral weight's distance scale (px) of a pixel whose window, so weighted, "
+                                   "is textured narrow_snr times above the photo's noise near its centre; 0: sigma_spatial "
+                                   "at every pixel. A plane fitted over a narrower window leans less behind a curved "
+                                   "surface: 2 suits small curved objects that fill the photos (zoo fused F@0.2 %: "
+                                   "turntable_black +.005, clutter +.004) and costs far ground seen at grazing angles "
+                                   "(far_field -.007; docs/DECISIONS.md, session 53)", ge=0.0)
+    narrow_snr: float = opt(3.0, "cpu: how many times the photo's noise (estimated per image) the intensities' standard "
+                                 "deviation in a pixel's narrowed window must reach", gt=0.0)
     min_texture: float = opt(0.005, "pixels whose weighted intensity standard deviation in the window is below this get no depth; cpu: filtering applies it again to the window's pixels within sigma_color / 2 of the pixel's own intensity (a uniform side of an edge, as sky beside a pole, otherwise takes the edge's depth)", ge=0.0)
     pyramid_levels: int = opt(4, "most coarse-to-fine levels (1 = single scale); each halves the resolution", ge=1, le=8)
     pyramid_min_size: int = opt(160, "a coarser level is added only while its longest side stays >= this (px)", ge=16)

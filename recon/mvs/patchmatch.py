@@ -16,6 +16,12 @@ The variant follows Gipuma (Galliani et al., ICCV 2015) and ACMH/ACMM (Xu and Ta
   stride (ACMM's 11 x 11 window read every second pixel), warped to each source view through the
   plane-induced homography, linearised at the window centre (one affine warp per window: a departure
   that saves a division per sample and is negligible unless the plane is seen nearly edge-on);
+* with ``narrow_sigma``, the window's spatial weight narrows, per pixel, where the window is textured
+  well above the photo's noise (:func:`matching_spread`): a plane fitted over a window leans behind a
+  curved surface by about half its curvature times the window's second moment, and that lean, not the
+  search, is what keeps curved objects' depths off (turntable_black's vase, clutter's balls); off by
+  default, as the narrower window loses far ground seen at grazing angles (docs/DECISIONS.md, sessions
+  43, 48 and 53);
 * multi-view aggregation is the mean of the K best source costs (Gipuma's "best K"); this departs from
   ACMM's probabilistic per-pixel view-selection weights, which cost more per hypothesis; a source the
   plane projects outside of counts as an uncorrelated window (:data:`UNSEEN_COST`), and the filter
@@ -47,7 +53,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -264,8 +270,9 @@ def _interpolate(srcs, s, x, y):
 
 
 @njit(cache=True, fastmath=True)
-def reference_patch(ref, x, y, window, sigma_spatial, sigma_color, weights, centred):
-    """Bilateral weights of the window around (x, y) and its weighted, mean-free intensities.
+def reference_patch(ref, x, y, window, spread, sigma_color, weights, centred):
+    """Bilateral weights of the window around (x, y) and its weighted, mean-free intensities; the
+    spatial weight of a sample at distance r is exp(-r^2 * spread[y, x]) (:func:`matching_spread`).
 
     Fills ``weights`` (summing to 1) and ``centred`` (weight * (intensity - weighted mean)), sample
     k = row * count + column; returns the weighted intensity variance.
@@ -273,7 +280,7 @@ def reference_patch(ref, x, y, window, sigma_spatial, sigma_color, weights, cent
     height, width = ref.shape
     start, step, count = window[0], window[1], window[2]
     centre = ref[y, x]
-    inv_s = 0.5 / (sigma_spatial * sigma_spatial)
+    inv_s = spread[y, x]
     inv_c = 0.5 / (sigma_color * sigma_color)
     total = 0.0
     k = 0
@@ -658,7 +665,7 @@ def upsample(depth_coarse, normal_coarse, views_coarse, kinv_coarse, kinv, depth
 
 @njit(parallel=True, cache=True, fastmath=True)
 def evaluate(ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max, window,
-             sigma_spatial, sigma_color, min_var, top_k, views_mode, depth, normal, cost, views):
+             spread, sigma_color, min_var, top_k, views_mode, depth, normal, cost, views):
     """The cost of every pixel's current hypothesis (after initialise or upsample).
 
     ``views_mode`` ALL_VIEWS: over all sources, and the view masks are reset to all sources;
@@ -679,7 +686,7 @@ def evaluate(ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max, 
         for x in range(width):
             if views_mode == ALL_VIEWS or views_mode == SELECT_VIEWS:
                 views[y, x] = everything
-            ref_var = reference_patch(ref, x, y, window, sigma_spatial, sigma_color, weights, centred)
+            ref_var = reference_patch(ref, x, y, window, spread, sigma_color, weights, centred)
             if ref_var < min_var:
                 cost[y, x] = MAX_COST + geo_weight * geo_max
                 continue
@@ -729,7 +736,7 @@ def _tested_before(tested, n_tested, d, n0, n1, n2):
 
 @njit(parallel=True, cache=True, fastmath=True)
 def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, geo_weight, geo_max,
-                         window, sigma_spatial, sigma_color, min_var, top_k, depth, normal, cost, views,
+                         window, spread, sigma_color, min_var, top_k, depth, normal, cost, views,
                          dmin, dmax, perturbation, random_candidates, key, region_offsets, region_counts,
                          n_regions, normals):
     """One half sweep: every pixel of ``colour`` ((x + y) % 2) tests the planes of the best
@@ -752,7 +759,7 @@ def propagate_and_refine(colour, ref, srcs, dims, kinv, A, b, src_depth, M, c, g
         scratch = np.empty(A.shape[0])
         tested = np.empty((n_regions, 4))  # (depth, normal) of the neighbours' planes tested at the pixel
         for x in range((y + colour) % 2, width, 2):
-            ref_var = reference_patch(ref, x, y, window, sigma_spatial, sigma_color, weights, centred)
+            ref_var = reference_patch(ref, x, y, window, spread, sigma_color, weights, centred)
             if ref_var < min_var:
                 continue
             n_tested = 0
@@ -912,6 +919,13 @@ class Level:
     srcs: np.ndarray
     dims: np.ndarray
     geometry: ViewGeometry
+    _spreads: dict = field(default_factory=dict, repr=False)
+
+    def spread(self, options: MVSOptions) -> np.ndarray:
+        """The reference's :func:`matching_spread` under ``options``, computed once."""
+        if options not in self._spreads:
+            self._spreads[options] = matching_spread(self.ref, options)
+        return self._spreads[options]
 
 
 def make_level(ref: np.ndarray, srcs: list[np.ndarray], ref_cam: Camera, src_cams: list[Camera],
@@ -966,10 +980,10 @@ def evaluate_state(level: Level, state: State, options: MVSOptions, views_mode: 
     """Recompute the costs of the current hypotheses (photometric, or with the geometric term when
     ``src_depth`` is given); ``views_mode`` as in :func:`evaluate`."""
     g = level.geometry
-    window, ss, sc, min_var, top_k = _kernel_params(options)
+    window, _, sc, min_var, top_k = _kernel_params(options)
     depth_maps, weight, cap = _geo_args(level, src_depth, options)
     evaluate(level.ref, level.srcs, level.dims, g.kinv, g.A, g.b, depth_maps, g.M, g.c, weight, cap,
-             window, ss, sc, min_var, top_k, views_mode, state.depth, state.normal, state.cost,
+             window, level.spread(options), sc, min_var, top_k, views_mode, state.depth, state.normal, state.cost,
              state.views)
 
 
@@ -981,13 +995,14 @@ def sweeps(level: Level, state: State, options: MVSOptions, depth_range: tuple[f
     regions of the propagation; each pixel also tests its plane turned to each of ``normals`` (K, 3;
     reference camera frame)."""
     g = level.geometry
-    window, ss, sc, min_var, top_k = _kernel_params(options)
+    window, _, sc, min_var, top_k = _kernel_params(options)
+    spread = level.spread(options)
     depth_maps, weight, cap = _geo_args(level, src_depth, options)
     for it in range(iterations):
         for colour in (0, 1):
             key = sweep_key(seed, 2 * (first_sweep + it) + colour)
             propagate_and_refine(colour, level.ref, level.srcs, level.dims, g.kinv, g.A, g.b,
-                                 depth_maps, g.M, g.c, weight, cap, window, ss, sc, min_var, top_k,
+                                 depth_maps, g.M, g.c, weight, cap, window, spread, sc, min_var, top_k,
                                  state.depth, state.normal, state.cost, state.views, depth_range[0],
                                  depth_range[1], perturbation * 0.5 ** it, random_candidates, key,
                                  REGION_OFFSETS, REGION_COUNTS, 8 if far_regions else 4, normals)
@@ -1153,6 +1168,58 @@ def own_texture(ref, window, sigma_spatial, sigma_color, out):
             else:
                 mean /= total
                 out[y, x] = math.sqrt(max(square / total - mean * mean, 0.0))
+
+
+#: The Laplacian-like mask of Immerkaer's noise estimate (1996): it cancels any intensity ramp, and a
+#: pixel's noise of standard deviation sigma gives it a standard deviation of 6 sigma
+NOISE_MASK = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
+
+
+def noise_sigma(ref: np.ndarray) -> float:
+    """The standard deviation of a grey image's pixel noise: the median absolute response to
+    :data:`NOISE_MASK`, which texture and edges raise at few pixels, taken as a normal variable's."""
+    response = cv2.filter2D(np.asarray(ref, np.float32), -1, NOISE_MASK)[1:-1, 1:-1]
+    return float(np.median(np.abs(response))) / (0.6745 * 6.0)
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def _narrowed(ref, window, wide, narrow, sigma_color, min_var, out):
+    """``out``: ``narrow`` where the window weighted with it has a variance of at least ``min_var`` and
+    of at least half the variance it has weighted with ``wide``, else ``wide``."""
+    n = window[2] * window[2]
+    for y in prange(ref.shape[0]):
+        weights = np.empty(n)
+        centred = np.empty(n)
+        for x in range(ref.shape[1]):
+            out[y, x] = wide
+            full = reference_patch(ref, x, y, window, out, sigma_color, weights, centred)
+            out[y, x] = narrow
+            if reference_patch(ref, x, y, window, out, sigma_color, weights, centred) < max(min_var, 0.5 * full):
+                out[y, x] = wide
+
+
+def matching_spread(ref: np.ndarray, options: MVSOptions) -> np.ndarray:
+    """Per pixel of the grey ``ref``, 1 / (2 sigma^2) of its matching window's spatial weight: sigma
+    ``options.narrow_sigma`` where the window's intensities, so weighted, vary by at least
+    ``options.narrow_snr`` times the image's noise (:func:`noise_sigma`) and keep at least half the
+    variance they have with the full weight, else ``sigma_spatial`` (the window radius).
+
+    A plane fitted over a window lies behind a convex surface by about half its curvature times the
+    window's weighted second moment (9.8 px^2 per axis for the default 11 x 11 window read every second
+    pixel; 3.9 at sigma 2). Where the narrower weight still holds texture well above the noise (at
+    ``narrow_snr`` 3, the noise alone costs a correlation of about 0.1), it matches as surely as the full
+    window and leans less; elsewhere the full window's samples average the noise out. Where the texture
+    lies at the window's edge (the rim of a flat region), the narrower weight would keep little of it,
+    and the matching less than the resampling of the sources' windows disturbs: the full weight stays."""
+    window, wide, sigma_color, _, _ = _kernel_params(options)
+    out = np.empty(ref.shape, np.float64)
+    if options.narrow_sigma <= 0:
+        out[:] = 0.5 / (wide * wide)
+        return out
+    floor = (options.narrow_snr * noise_sigma(ref)) ** 2
+    _narrowed(ref, window, 0.5 / (wide * wide), 0.5 / options.narrow_sigma ** 2, sigma_color,
+              max(floor, options.min_texture ** 2), out)
+    return out
 
 
 def untextured(ref: np.ndarray, options: MVSOptions) -> np.ndarray:

@@ -26,11 +26,12 @@ def _costs(n_sources: int, mask: int, bound_of):
     weights, centred = np.empty(n), np.empty(n)
     costs, scratch = np.empty(n_sources), np.empty(n_sources)
     no_depths = np.zeros((n_sources, 1, 1), np.float32)
+    spread = np.full(ref.shape, 0.5 / 5.0**2)  # the full window's spatial weight at every pixel
     rng = np.random.default_rng(2)
     full, bounded = [], []
     for _ in range(400):
         x, y = int(rng.integers(6, WIDTH - 6)), int(rng.integers(6, HEIGHT - 6))
-        ref_var = pm.reference_patch(ref, x, y, window, 5.0, 0.2, weights, centred)
+        ref_var = pm.reference_patch(ref, x, y, window, spread, 0.2, weights, centred)
         normal = np.array([rng.normal(0, 0.2), rng.normal(0, 0.2), -1.0])
         normal /= np.linalg.norm(normal)
         depth = rng.uniform(1.0, 3.0)
