@@ -1210,7 +1210,8 @@ def matching_spread(ref: np.ndarray, options: MVSOptions) -> np.ndarray:
     ``narrow_snr`` 3, the noise alone costs a correlation of about 0.1), it matches as surely as the full
     window and leans less; elsewhere the full window's samples average the noise out. Where the texture
     lies at the window's edge (the rim of a flat region), the narrower weight would keep little of it,
-    and the matching less than the resampling of the sources' windows disturbs: the full weight stays."""
+    and resampling the sources' windows would disturb the match more than that texture decides it: the
+    full weight stays."""
     window, wide, sigma_color, _, _ = _kernel_params(options)
     out = np.empty(ref.shape, np.float64)
     if options.narrow_sigma <= 0:

@@ -211,8 +211,7 @@ def test_glossy_parts_show_a_highlight_that_moves_with_the_view(rendered):
     info = rendered("glossy")
     shiny = [i for i, p in enumerate(setup.parts) if p.gloss > 0]
     assert shiny and len(shiny) < len(setup.parts)
-    glossy = Renderer(assemble(setup.parts), setup.background)
-    matte = Renderer(assemble([dataclasses.replace(p, gloss=0.0) for p in setup.parts]), setup.background)
+    glossy, matte = _with_and_without_highlights(setup)
     lit = []
     for cam in info.cameras().values():
         extra = glossy.render(cam, supersample=1)[0].astype(int) - matte.render(cam, supersample=1)[0].astype(int)
@@ -224,17 +223,22 @@ def test_glossy_parts_show_a_highlight_that_moves_with_the_view(rendered):
     assert any((a != b).any() for a, b in zip(lit, lit[1:]))
 
 
+def _with_and_without_highlights(setup) -> tuple[Renderer, Renderer]:
+    """Renderers of ``setup``'s parts as they are and with every part matte."""
+    return (Renderer(assemble(setup.parts), setup.background),
+            Renderer(assemble([dataclasses.replace(p, gloss=0.0) for p in setup.parts]), setup.background))
+
+
 def test_a_glossy_scene_ships_its_held_out_views_without_highlights(rendered):
     """What a texture can show of a held-out view of glossy: the view rendered without highlights, written as
     its photo is; the photo is that plus the highlights. A matte scene ships none."""
-    setup = zoo_setup("glossy")
+    glossy, matte = _with_and_without_highlights(zoo_setup("glossy"))
     info = rendered("glossy")
-    matte = Renderer(assemble([dataclasses.replace(p, gloss=0.0) for p in setup.parts]), setup.background)
-    glossy = Renderer(assemble(setup.parts), setup.background)
     for name, cam in info.cameras(holdout=True).items():
         diffuse = np.asarray(Image.open(info.holdout_diffuse_dir / name).convert("RGB")).astype(int)
         photo = np.asarray(Image.open(info.holdout_images_dir / name).convert("RGB")).astype(int)
-        lit = (glossy.render(cam)[0].astype(int) - matte.render(cam)[0].astype(int)).max(axis=2) > 40
-        assert np.abs(diffuse - matte.render(cam)[0]).mean() < 2  # (JPEG)
+        without = matte.render(cam)[0].astype(int)
+        lit = (glossy.render(cam)[0].astype(int) - without).max(axis=2) > 40
+        assert np.abs(diffuse - without).mean() < 2  # (JPEG)
         assert (photo - diffuse)[lit].mean() > 30 and np.abs(photo - diffuse)[~lit].mean() < 2
     assert not rendered("classic").holdout_diffuse_dir.exists()
