@@ -72,6 +72,10 @@ class MVSOptions:
                                     "sources confirming the depth show there: the foreground's depth the matching window "
                                     "carried onto the background beside a silhouette (recon.mvs.fattening; zoo: clutter "
                                     "held-out texture 25.29 -> 25.82 dB, mesh F@0.2 % .947 -> .949; docs/DECISIONS.md)")
+    drop_at_infinity: bool = opt(True, "cpu: drop the depths whose sources match them no better than they match the "
+                                       "plane at infinity: the sky, and whatever else shows no parallax "
+                                       "(recon.mvs.at_infinity; zoo far_field: fused F@0.2 % .9591 -> .9629, its sky "
+                                       "gone from the cloud; docs/DECISIONS.md)")
     ground_normal: bool = opt(True, "cpu: where the photos agree on an up direction (taken by hand or at eye height), "
                                     "each pixel also tests its plane turned to face it: the ground, seen at grazing "
                                     "angles, where random normals rarely land close (recon.mvs.ground_normal; zoo: "

@@ -76,17 +76,17 @@ def camera_record(view: ViewCamera, photo=None) -> dict:
 
 #: the mvs stage's version since which photometric maps are made as now: a new one (the stage's version
 #: then) makes every view's photometric maps again. A new final version makes only its final maps again
-#: (the geometric pass, the filter, the background clearing and the fill), from the stored
-#: photometric maps. The mvs stage's own version changes with either.
+#: (the geometric pass, the filter, the test at infinity, the background clearing and the fill), from the
+#: stored photometric maps. The mvs stage's own version changes with either.
 PHOTOMETRIC_VERSION = 16
-FINAL_VERSION = 3
+FINAL_VERSION = 4
 
-#: the options only the geometric pass, the filter, the silhouette check, the background clearing and the fill
-#: read: they key a view's final maps, not its photometric ones, so changing one runs the final part again
-#: from the stored photometric maps
+#: the options only the geometric pass, the filter, the test at infinity, the silhouette check, the
+#: background clearing and the fill read: they key a view's final maps, not its photometric ones, so
+#: changing one runs the final part again from the stored photometric maps
 FINAL_ONLY = ("geometric", "geometric_iterations", "geometric_weight", "geometric_max_error", "filter_max_cost",
               "filter_min_consistent", "filter_unconfirmed_cost", "filter_max_reprojection", "filter_max_depth_error",
-              "filter_grazing_allowance", "planar_fill", "clear_background", "drop_fattened")
+              "filter_grazing_allowance", "planar_fill", "clear_background", "drop_fattened", "drop_at_infinity")
 
 
 def _options(options: MVSOptions, final: bool) -> dict:

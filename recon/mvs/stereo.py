@@ -33,6 +33,7 @@ import pycolmap
 
 from recon.files import atomic
 from recon.mvs import patchmatch
+from recon.mvs.at_infinity import drop_at_infinity
 from recon.mvs.background import clear_background
 from recon.mvs.colmap_io import read_depth_map, read_normal_map, write_map
 from recon.mvs.fattening import drop_fattened
@@ -185,6 +186,9 @@ def geometric_view(dense_dir: str | Path, problem: Problem, options: MVSOptions,
         clear = options.clear_background and options.min_texture > 0
         blank = patchmatch.untextured(view.level.ref, options) if fill or clear else None
         state = patchmatch.filter_depth(view, state, options, blank)
+        if options.drop_at_infinity:
+            dropped = drop_at_infinity(view, state, options)
+            log.debug("%s: %d pixels matched no better at infinity lost their depth", problem.ref, dropped)
         depth, normal = state.depth, state.normal
         if options.drop_fattened:
             dropped = drop_fattened(ref, ref_cam, depth, normal, srcs, src_cams, src_depths, options)

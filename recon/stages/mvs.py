@@ -88,7 +88,7 @@ def _view_pass(task) -> str:
 @register
 class Mvs(Stage):
     name = "mvs"
-    version = 16
+    version = 17
     Config = MvsConfig
     requires = (DenseScene, SparseModel, PreparedPhotos)  # the photos and their cameras key the maps kept
     produces = DepthMaps
