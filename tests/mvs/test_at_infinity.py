@@ -5,30 +5,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from plane_views import FOCAL, H, W, camera, texture
 
 from recon.mvs.at_infinity import drop_at_infinity, matched_at_infinity
 from recon.mvs.options import MVSOptions
 from recon.mvs.patchmatch import Camera, State, checked, photometric_costs
 
-W, H, FOCAL = 160, 120, 150.0
 HORIZON = 50  # rows above it show the sky, the rest a textured wall
 #: camera centres: the reference and its sources, beside and above it
 CENTRES = ((0.0, 0.0), (0.3, 0.0), (-0.3, 0.0), (0.0, 0.25))
-
-
-def camera(x: float, y: float) -> Camera:
-    K = np.array([[FOCAL, 0, W / 2], [0, FOCAL, H / 2], [0, 0, 1]])
-    return Camera(K, np.eye(3), -np.array([x, y, 0.0]))
-
-
-def texture(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """A smooth random pattern on the wall, features a few pixels across."""
-    rng = np.random.default_rng(3)
-    value = np.zeros_like(x)
-    for _ in range(8):
-        fx, fy = rng.uniform(-40, 40, 2)
-        value += np.sin(fx * x + fy * y + rng.uniform(0, 2 * np.pi))
-    return 0.5 + 0.06 * value
 
 
 def render(cam: Camera, wall: float) -> np.ndarray:
@@ -40,7 +25,7 @@ def render(cam: Camera, wall: float) -> np.ndarray:
     sky = 0.6 + 0.08 * np.sin(30 * dy) + 0.3 * dy
     # the wall's top edge is the horizon row as the reference sees it
     on_wall = cy + wall * dy >= wall * (HORIZON - H / 2) / FOCAL
-    return np.where(on_wall, texture(cx + wall * dx, cy + wall * dy), sky).astype(np.float32)
+    return np.where(on_wall, texture(cx + wall * dx, cy + wall * dy, 3), sky).astype(np.float32)
 
 
 def view_and_state(wall: float, sky_depth: float):

@@ -5,33 +5,18 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+from plane_views import FOCAL, H, W, camera, texture
 
 from recon.mvs.fattening import drop_fattened
 from recon.mvs.options import MVSOptions
 from recon.mvs.patchmatch import Camera
 
-W, H, FOCAL = 160, 120, 150.0
 NEAR, FAR = 2.0, 4.0  # depths of the foreground square and of the background wall
 HALF = 0.35  # the square's half side
 #: px of background beside the silhouette that carry the foreground's depth (within the window's radius)
 FAT = 3
 #: camera centres: the reference and its sources, beside and above it
 CENTRES = ((0.0, 0.0), (0.3, 0.0), (-0.3, 0.0), (0.0, 0.25), (0.2, -0.2))
-
-
-def camera(x: float, y: float) -> Camera:
-    K = np.array([[FOCAL, 0, W / 2], [0, FOCAL, H / 2], [0, 0, 1]])
-    return Camera(K, np.eye(3), -np.array([x, y, 0.0]))
-
-
-def texture(x: np.ndarray, y: np.ndarray, seed: int) -> np.ndarray:
-    """A smooth random pattern on a plane, features a few pixels across."""
-    rng = np.random.default_rng(seed)
-    value = np.zeros_like(x)
-    for _ in range(8):
-        fx, fy = rng.uniform(-40, 40, 2)
-        value += np.sin(fx * x + fy * y + rng.uniform(0, 2 * np.pi))
-    return (0.5 + 0.06 * value).astype(np.float32)
 
 
 def render(cam: Camera) -> tuple[np.ndarray, np.ndarray]:
