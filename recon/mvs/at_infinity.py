@@ -35,7 +35,9 @@ def matched_at_infinity(view: patchmatch.Checked, state: patchmatch.State, optio
     far = np.float32(1e6 * float(state.depth[held].max()))
     facing = np.zeros_like(state.normal)
     facing[..., 2] = -1.0
-    at_infinity = patchmatch.State(np.full_like(state.depth, far), facing, np.zeros_like(state.cost), state.views)
+    # (a pixel without a depth matches no source there: its empty view mask spares the warps)
+    at_infinity = patchmatch.State(np.full_like(state.depth, far), facing, np.zeros_like(state.cost),
+                                   np.where(held, state.views, 0))
     return held & (patchmatch.photometric_costs(view, at_infinity, options).cost <= state.cost + MARGIN)
 
 
