@@ -175,10 +175,41 @@ def ground_truth_distance(scene: SceneInfo):
 
 @functools.lru_cache(maxsize=4)
 def _gt_distance(mesh_path: str, _stamp: int):
+    mesh = _gt_mesh(mesh_path, _stamp)
+    return _mesh_distance(mesh.vertices, mesh.faces)
+
+
+@functools.lru_cache(maxsize=4)
+def _gt_mesh(mesh_path: str, _stamp: int):
     import trimesh
 
-    mesh = trimesh.load(mesh_path, process=False, force="mesh")
-    return _mesh_distance(mesh.vertices, mesh.faces)
+    return trimesh.load(mesh_path, process=False, force="mesh")
+
+
+def normal_angles(vertices: np.ndarray, faces: np.ndarray, scene: SceneInfo, limit: float, samples: int = 20_000,
+                  seed: int = 0) -> np.ndarray:
+    """Angles (degrees, 0-90) between the faces of a mesh (in the scene's frame) and the true surface: for up
+    to ``samples`` faces, drawn at random, whose centroid lies within ``limit`` of the true mesh, the angle of
+    the face's normal to the normal of the nearest true triangle, sign aside. A flat face that comes out
+    bumpy, or an edge rounded off, shows here while the F-scores, which count distance alone, barely move."""
+    vertices = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces, np.int64)
+    picked = np.random.default_rng(seed).choice(len(faces), min(samples, len(faces)), replace=False)
+    corners = vertices[faces[picked]]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    corners, normals = corners[length > 0], normals[length > 0] / length[length > 0, None]
+    truth = _gt_mesh(str(scene.mesh_path), scene.mesh_path.stat().st_mtime_ns)
+    o3d = open3d()
+    raycast = o3d.t.geometry.RaycastingScene()
+    raycast.add_triangles(o3d.core.Tensor(np.asarray(truth.vertices, np.float32)),
+                          o3d.core.Tensor(np.asarray(truth.faces, np.uint32)))
+    centroids = corners.mean(axis=1)
+    nearest = raycast.compute_closest_points(o3d.core.Tensor(centroids.astype(np.float32)))
+    on = np.linalg.norm(nearest["points"].numpy() - centroids, axis=1) <= limit
+    true_normals = np.asarray(truth.face_normals)[nearest["primitive_ids"].numpy().astype(np.int64)[on]]
+    cos = np.abs(np.einsum("ij,ij->i", normals[on], true_normals))
+    return np.degrees(np.arccos(np.clip(cos, 0.0, 1.0)))
 
 
 def _as_geometry(obj) -> tuple[np.ndarray, np.ndarray | None]:

@@ -5,7 +5,7 @@ import pytest
 import trimesh
 from scipy.special import erf
 
-from recon.eval.surface import observed_points, sample_mesh, surface_metrics, views_seeing
+from recon.eval.surface import normal_angles, observed_points, sample_mesh, surface_metrics, views_seeing
 from recon.synth import render_scene
 
 
@@ -149,3 +149,13 @@ def test_object_metrics_count_only_the_surface_a_view_sees_when_told_which():
     assert seen["completeness@0.002"] > 99.0
     assert whole["completeness@0.002"] < 90.0
     assert seen["accuracy@0.002"] == whole["accuracy@0.002"]
+
+
+def test_normal_angles_are_zero_on_the_truth_and_grow_with_bumps(scene, gt_mesh):
+    limit = 0.002 * scene.extent
+    assert normal_angles(gt_mesh.vertices, gt_mesh.faces, scene, limit).max() < 0.01
+    assert len(normal_angles(gt_mesh.vertices + scene.extent, gt_mesh.faces, scene, limit)) == 0  # none near the truth
+    fine = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(gt_mesh.vertices, gt_mesh.faces, 4 * limit), process=False)
+    bumpy = fine.vertices + np.random.default_rng(0).normal(0, limit / 4, fine.vertices.shape)
+    angles = normal_angles(bumpy, fine.faces, scene, limit)
+    assert len(angles) > 1000 and np.median(angles) > 5

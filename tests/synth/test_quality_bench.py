@@ -44,6 +44,7 @@ def test_bench_runs_a_tiny_scene_end_to_end(tmp_path, capsys):
     assert 0.0 < row["true_shape"] <= 1.0 and row["psnr_true_shape"] > 10 and row["psnr_vertex_colours_true_shape"] > 10
     assert 0.0 <= row["pose_auc@5"] <= 1.0 and 0.0 < row["depth"]["completeness@0.002"] <= 1.0
     assert 0.0 < row["seen_twice"] <= 1.0
+    assert 0.0 < row["mesh_normal_degrees"] < row["mesh_normal_degrees_p90"] < 90.0
     assert sum(g["share"] for g in row["fused_by_views"].values()) == pytest.approx(1.0)
     fused = row["fused"]  # its F-score is the harmonic mean of its accuracy and completeness
     assert fused["F@0.002"] == pytest.approx(2 / (1 / fused["accuracy@0.002"] + 1 / fused["completeness@0.002"]))
@@ -199,3 +200,17 @@ def test_vertices_per_pixel_counts_the_vertices_a_view_sees_on_its_surface():
     left_half[:, 20:] = False
     assert quality_bench.vertices_per_pixel(wall, cam, depth, left_half, 0.01) == pytest.approx(2.0)
     assert quality_bench.vertices_per_pixel(wall[: len(wall) // 2], cam, depth, everywhere, 0.01) == pytest.approx(1.0)
+
+
+def test_the_worst_mesh_normal_is_the_largest_angle_and_the_table_prints_them(capsys):
+    rows = [_row("a", 0.9, 0.8, 26.0, 22.0, 0.99) | {"mesh_normal_degrees": 1.5, "mesh_normal_degrees_p90": 9.0},
+            _row("b", 0.7, 0.6, 24.0, 23.0, 0.95) | {"mesh_normal_degrees": 2.5, "mesh_normal_degrees_p90": 12.0}]
+    summ = quality_bench.summary(rows)
+    assert summ["mean"]["mesh_normal_degrees"] == pytest.approx(2.0)
+    assert summ["worst"]["mesh_normal_degrees"] == 2.5 and summ["worst"]["mesh_normal_degrees_p90"] == 12.0
+    assert summ["worst"]["mesh@0.002"] == 0.6  # the F-scores' worst is still the smallest
+    quality_bench.print_table(rows, summ)
+    lines = capsys.readouterr().out.splitlines()
+    head = next(i for i, line in enumerate(lines) if "angle to the true surface's normal" in line)
+    assert [line.split() for line in lines[head + 1:head + 5]] == [
+        ["a", "1.50", "9.0"], ["b", "2.50", "12.0"], ["mean", "2.00", "10.5"], ["worst", "2.50", "12.0"]]
