@@ -41,10 +41,10 @@ class MeshConfig(MeshOptions):
                                     "is found with the mvs options). Zoo: mesh F@0.2 % mean .9475 -> .9488, "
                                     "noisy_phone .969 -> .978; held-out coverage mean -.0005 (docs/DECISIONS.md)")
     denoise: bool = opt(True, "flatten the surface's noise and keep its edges, last: the face normals filtered "
-                              "bilaterally, the vertices moved to fit them (recon.surface.denoise). Zoo, 15 scenes: "
+                              "bilaterally, the vertices moved to fit them (recon.surface.denoise). Zoo, 17 scenes: "
                               "the faces' median angle to the true surface down on all (street_forward 17.1 -> 4.5 "
                               "degrees, turntable_black 6.0 -> 1.6, plain_boxes 1.8 -> 0.6), mesh F@0.2 % mean "
-                              ".9568 -> .9576, worst .8358 -> .8395; held-out texture PSNR mean 31.53 -> 31.48 dB, "
+                              ".9561 -> .9569, worst .8358 -> .8395; held-out texture PSNR mean 31.02 -> 30.98 dB, "
                               "-0.37 to +0.88 per scene (docs/DECISIONS.md)")
 
 

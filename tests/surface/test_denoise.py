@@ -7,7 +7,7 @@ from recon.surface.denoise import denoised_vertices
 
 
 def _box(subdivisions: int = 4) -> trimesh.Trimesh:
-    """A 2 x 2 x 2 cube of small triangles, each face knowing its side."""
+    """A 2 x 2 x 2 cube, each side cut into small triangles."""
     box = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
     for _ in range(subdivisions):
         box = box.subdivide()
