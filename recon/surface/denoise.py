@@ -18,7 +18,7 @@ import scipy.sparse
 NORMAL_SWEEPS = 5
 VERTEX_SWEEPS = 10
 #: range sigma on the difference of two unit normals: 0.35 (about 20 degrees) mixes the normals of a noisy
-#: flat face and keeps those of two faces meeting at a sharper angle apart (Zheng et al. use 0.2-0.5)
+#: flat face and keeps those of two faces meeting at a sharper angle apart (a right angle weighs exp(-8))
 SIGMA_NORMAL = 0.35
 
 
