@@ -40,12 +40,12 @@ class MeshConfig(MeshOptions):
                                     "surface run on past its edge into the sky (recon.surface.backdrop; the background "
                                     "is found with the mvs options). Zoo: mesh F@0.2 % mean .9475 -> .9488, "
                                     "noisy_phone .969 -> .978; held-out coverage mean -.0005 (docs/DECISIONS.md)")
-    denoise: bool = opt(True, "flatten the surface's noise and keep its edges, last: the face normals filtered "
-                              "bilaterally, the vertices moved to fit them (recon.surface.denoise). Zoo, 17 scenes: "
-                              "the faces' median angle to the true surface down on all (street_forward 17.1 -> 4.5 "
-                              "degrees, turntable_black 6.0 -> 1.6, plain_boxes 1.8 -> 0.6), mesh F@0.2 % mean "
-                              ".9561 -> .9569, worst .8358 -> .8395; held-out texture PSNR mean 31.02 -> 30.98 dB, "
-                              "-0.37 to +0.88 per scene (docs/DECISIONS.md)")
+    denoise: bool = opt(True, "flatten the surface's noise, last, and leave its sharp edges as they were: the face "
+                              "normals filtered bilaterally, the vertices moved to fit them, those within 2 edges "
+                              "of a sharp vertex put back (recon.surface.denoise). Zoo, 17 scenes: the faces' "
+                              "median angle to the true surface down on all (street_forward 17.1 -> 6.0 degrees, "
+                              "turntable_black 6.0 -> 2.5, plain_boxes 1.8 -> 0.6), mesh F@0.2 % mean .9561 -> "
+                              ".9565, held-out texture PSNR mean 31.02 -> 31.03 dB (docs/DECISIONS.md)")
 
 
 def _drop_masked(ctx: StageContext, mesh):
