@@ -13,6 +13,7 @@ the held-out views of the zoo then showed a worse texture there (plain_boxes 35.
 from the vertices within 4 thresholds of the true edges; why is not known, docs/DECISIONS.md). So the
 vertices within ``EDGE_RINGS`` edges of a sharp vertex of the denoised surface stay where they were.
 """
+
 from __future__ import annotations
 
 import numpy as np
