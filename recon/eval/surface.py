@@ -27,6 +27,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from recon._open3d import open3d
+from recon.surface.raycast import scene_of
 from recon.synth.dataset import SceneInfo
 
 log = logging.getLogger(__name__)
@@ -157,8 +158,7 @@ def sample_mesh(vertices: np.ndarray, faces: np.ndarray, spacing: float, seed: i
 
 def _mesh_distance(vertices: np.ndarray, faces: np.ndarray):
     o3d = open3d()
-    rc = o3d.t.geometry.RaycastingScene()
-    rc.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)), o3d.core.Tensor(np.asarray(faces, np.uint32)))
+    rc = scene_of(vertices, faces)
 
     def distance(points: np.ndarray) -> np.ndarray:
         if len(points) == 0:
@@ -200,12 +200,9 @@ def normal_angles(vertices: np.ndarray, faces: np.ndarray, scene: SceneInfo, lim
     length = np.linalg.norm(normals, axis=1)
     corners, normals = corners[length > 0], normals[length > 0] / length[length > 0, None]
     truth = _gt_mesh(str(scene.mesh_path), scene.mesh_path.stat().st_mtime_ns)
-    o3d = open3d()
-    raycast = o3d.t.geometry.RaycastingScene()
-    raycast.add_triangles(o3d.core.Tensor(np.asarray(truth.vertices, np.float32)),
-                          o3d.core.Tensor(np.asarray(truth.faces, np.uint32)))
     centroids = corners.mean(axis=1)
-    nearest = raycast.compute_closest_points(o3d.core.Tensor(centroids.astype(np.float32)))
+    nearest = scene_of(truth.vertices, truth.faces).compute_closest_points(
+        open3d().core.Tensor(centroids.astype(np.float32)))
     on = np.linalg.norm(nearest["points"].numpy() - centroids, axis=1) <= limit
     true_normals = np.asarray(truth.face_normals)[nearest["primitive_ids"].numpy().astype(np.int64)[on]]
     cos = np.abs(np.einsum("ij,ij->i", normals[on], true_normals))
