@@ -109,7 +109,7 @@ class Renderer:
         part[idx] = hit["part"]
         depth, normal, colour = depth.reshape(h, w), normal.reshape(h, w, 3), colour.reshape(h, w, 3)
 
-        edges = _edges(part.reshape(h, w), depth)
+        edges = edge_pixels(part.reshape(h, w), depth)
         if supersample > 1 and edges.any():
             ei, ej = np.nonzero(edges)
             offs = (np.arange(supersample, dtype=np.float32) + 0.5) / supersample
@@ -137,9 +137,7 @@ class Renderer:
 
     def _background(self, R: np.ndarray, dirs_cam: np.ndarray) -> np.ndarray:
         """Background colours (N, 3) of camera-frame rays ``dirs_cam`` of a camera with rotation ``R``."""
-        if callable(self.background):
-            return self.background(apply_matrix(R.T.astype(np.float32), dirs_cam))
-        return np.tile(np.asarray(self.background, np.float32), (len(dirs_cam), 1))
+        return background_colours(self.background, apply_matrix(R.T.astype(np.float32), dirs_cam))
 
     def _cast(self, center: np.ndarray, R: np.ndarray, dirs_cam: np.ndarray, sample_pixels: float,
               pixels_per_radian: float) -> dict[str, np.ndarray]:
@@ -196,7 +194,14 @@ def _camera_rays(cam: Camera, px: np.ndarray) -> np.ndarray:
     return cam.rays(px).astype(np.float32)
 
 
-def _edges(part: np.ndarray, depth: np.ndarray) -> np.ndarray:
+def background_colours(background: Background, directions: np.ndarray) -> np.ndarray:
+    """What rays of world ``directions`` (N, 3) that miss the scene show (N, 3 RGB in [0, 1])."""
+    if callable(background):
+        return background(np.asarray(directions, np.float32))
+    return np.tile(np.asarray(background, np.float32), (len(directions), 1))
+
+
+def edge_pixels(part: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """Pixels whose 8-neighbourhood holds another part (or sky) or a relative depth jump."""
     h, w = part.shape
     pp = np.pad(part, 1, mode="edge")
