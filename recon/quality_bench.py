@@ -94,6 +94,9 @@ REPO = Path(__file__).resolve().parents[1]
 CONFIG = Path(__file__).resolve().parent / "pipelines" / "full.yaml"
 TAUS = ("0.002", "0.005")
 SUPERSAMPLE = 3  # rays per pixel side where the held-out photos were anti-aliased (recon.synth.render)
+#: how the held-out PSNRs rendered the models (quality.json's ``texture_rendering``; runs before it was recorded
+#: cast one ray per pixel): two runs rendered differently do not compare
+TEXTURE_RENDERING = "as photographed"
 STAGES = ("ingest", "preprocess", "features", "matching", "sfm", "export", "undistort", "mvs", "fusion", "mesh",
           "texture")
 
@@ -578,6 +581,10 @@ def compare(before: dict, after: dict) -> None:
     alone = sorted(set(by_name[0]) ^ set(by_name[1]))
     if alone:
         print(f"left out, in one run only: {', '.join(alone)}")
+    rendering = [run.get("texture_rendering", "one ray per pixel") for run in (before, after)]
+    if rendering[0] != rendering[1]:
+        print(f"the texture PSNRs do not compare: the models were rendered {rendering[0]} before, {rendering[1]} "
+              "after (recon.quality_bench.render_as_photographed)")
     print(f"{'scene':<16}" + "".join(f"{label:>18}" for _, label, _ in COMPARED))
     columns = [[summary([r])["mean"] for r in rows] for rows in runs]
     for name, b, a in zip(names, *columns):
@@ -715,7 +722,8 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr, flush=True)
         # written after every scene: an interrupted run keeps the scenes it finished
         path.write_text(json.dumps({"config": str(args.config), "overrides": args.override,
-                                    "size": [width, height], "scenes": rows, "summary": summary(rows)}, indent=1))
+                                    "size": [width, height], "texture_rendering": TEXTURE_RENDERING,
+                                    "scenes": rows, "summary": summary(rows)}, indent=1))
     print_table(rows, summary(rows))
     print(f"results: {path}")
     return 0

@@ -147,6 +147,12 @@ def test_compare_prints_both_runs_and_counts_moves_beyond_the_seed(tmp_path, cap
     assert "up/down at all: fusedF.2 1/1, meshF.2 1/0" in out
     assert ("by more than the seed does: fusedF.2 1/0, meshF.2 1/0, texPSNR 0/0, tex-vc 0/0, cover 0/1, "
             "texPSNRpl 0/0, tex-vc.pl 0/0") in out
+    assert "do not compare" not in out
+    after["texture_rendering"] = quality_bench.TEXTURE_RENDERING  # a run since the bench renders as photographed
+    paths[1].write_text(json.dumps(after))
+    assert quality_bench.main(["--compare", *map(str, paths)]) == 0
+    assert ("the texture PSNRs do not compare: the models were rendered one ray per pixel before, as photographed "
+            "after") in capsys.readouterr().out
 
 
 def test_compare_refuses_a_file_that_is_not_a_bench_result(tmp_path, capsys):
