@@ -127,7 +127,7 @@ def test_the_table_prints_the_texture_ceiling_of_a_scene_with_highlights_only(ca
     quality_bench.print_table(rows, summ)
     lines = capsys.readouterr().out.splitlines()
     head = next(i for i, line in enumerate(lines) if line.startswith("scenes with highlights"))
-    assert lines[head + 2].split() == ["a", "27.07", "26.11", "24.51", "29.50", "25.00", "+4.50"]
+    assert lines[head + 2].split() == ["a", "27.07", "26.11", "24.51", "+2.56", "29.50", "25.00", "+4.50"]
     assert len(lines) == head + 3  # b has none
 
 
