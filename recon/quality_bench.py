@@ -130,16 +130,16 @@ def holdout_texture(ws: Path, scene) -> dict:
     import trimesh
     from PIL import Image
 
-    from recon.eval.texture import first_hits, masked_psnr
+    from recon.eval.texture import masked_psnr
     from recon.surface.export import read_glb
 
     meshes = {"texture": read_glb(ws / "textured.glb"), "vertex_colours": trimesh.load(ws / "mesh.ply", process=False)}
-    placed = placed_holdout(ws, scene, meshes)
+    truth_scene = true_scene(scene)
+    placed = placed_holdout(ws, scene, meshes, truth_scene)
     sim = recon.api.model_to_ground_truth(ws, scene.root)
     for mesh in meshes.values():
         mesh.vertices = sim.apply(np.asarray(mesh.vertices))
     tolerance = float(TAUS[0]) * scene.extent
-    truth_scene = true_scene(scene)
     psnr: dict[str, list[float]] = {k: [] for k in meshes}
     on_shape: dict[str, list[float]] = {k: [] for k in meshes}
     vs_diffuse: dict[str, list[float]] = {k: [] for k in meshes}
@@ -152,19 +152,18 @@ def holdout_texture(ws: Path, scene) -> dict:
         density.append(vertices_per_pixel(np.asarray(meshes["vertex_colours"].vertices), cam, depth, surface,
                                           tolerance))
         rays = _true_rays(cam)  # (directions of camera z = 1: a hit's distance along the ray is its depth)
-        hits = first_hits(meshes["texture"], *_pixel_grid(rays, cam.width, cam.height))
-        right = surface & (np.abs(hits - depth) <= tolerance)
-        shape.append(float(np.count_nonzero(right) / max(np.count_nonzero(surface), 1)))
-        for key, mesh in meshes.items():
-            image, mask = render_as_photographed(mesh, rays, depth, truth_scene)
+        for key, mesh in meshes.items():  # the texture first: its shape picks the pixels ``right``
+            image, mask, hits = render_as_photographed(mesh, rays, depth, truth_scene)
+            if key == "texture":
+                right = surface & (np.abs(hits - depth) <= tolerance)
+                shape.append(float(np.count_nonzero(right) / max(np.count_nonzero(surface), 1)))
+                coverage.append(float(np.count_nonzero(mask & surface) / max(np.count_nonzero(surface), 1)))
             if (mask & surface).any():  # no PSNR where the mesh shows nothing of the surface
                 psnr[key].append(masked_psnr(image, truth, mask & surface))
                 if diffuse is not None:
                     vs_diffuse[key].append(masked_psnr(image, diffuse, mask & surface))
             if right.any():
                 on_shape[key].append(masked_psnr(image, truth, right))
-            if key == "texture":
-                coverage.append(float(np.count_nonzero(mask & surface) / max(np.count_nonzero(surface), 1)))
     out = {"coverage": float(np.mean(coverage)), "vertices_per_pixel": float(np.mean(density)),
            "true_shape": float(np.mean(shape))}
     if psnr["texture"]:
@@ -191,7 +190,7 @@ def vertices_per_pixel(vertices: np.ndarray, cam, depth: np.ndarray, surface: np
     return float(np.count_nonzero(seen) / max(np.count_nonzero(surface), 1))
 
 
-def placed_holdout(ws: Path, scene, meshes: dict) -> dict:
+def placed_holdout(ws: Path, scene, meshes: dict, truth_scene: TrueScene) -> dict:
     """Masked PSNR of ``meshes`` (``texture``, ``vertex_colours``; in the model's frame) in the held-out
     views where ``recon localize`` places them in the model, through the model's camera (its distortion
     too): ``psnr_placed`` and ``psnr_vertex_colours_placed``, means over the views placed and showing the
@@ -207,7 +206,6 @@ def placed_holdout(ws: Path, scene, meshes: dict) -> dict:
     images = {Path(image.name).name: image for image in model.images.values()}
     names = sorted(Path(p["name"]).name for p in result["photos"] if p["placed"])
     psnr: dict[str, list[float]] = {k: [] for k in meshes}
-    truth_scene = true_scene(scene)
     for name in names:
         truth = np.asarray(Image.open(scene.holdout_images_dir / name).convert("RGB"))
         depth = scene.depth(name)
@@ -215,7 +213,7 @@ def placed_holdout(ws: Path, scene, meshes: dict) -> dict:
         image = images[name]
         rays = _photo_rays(model.camera(image.camera_id), image.cam_from_world(), truth.shape[1], truth.shape[0])
         for key, mesh in meshes.items():
-            rendered, mask = render_as_photographed(mesh, rays, depth, truth_scene)
+            rendered, mask, _ = render_as_photographed(mesh, rays, depth, truth_scene)
             if (mask & surface).any():
                 psnr[key].append(masked_psnr(rendered, truth, mask & surface))
     out = {"placed": len(names)}
@@ -261,14 +259,15 @@ def _pixel_grid(rays: Rays, width: int, height: int) -> tuple[np.ndarray, np.nda
     return origins.reshape(height, width, 3), directions.reshape(height, width, 3)
 
 
-def render_as_photographed(mesh, rays: Rays, true_depth: np.ndarray, truth: TrueScene) -> tuple[np.ndarray, np.ndarray]:
+def render_as_photographed(mesh, rays: Rays, true_depth: np.ndarray,
+                           truth: TrueScene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``mesh`` rendered into a held-out view the way its photo was rendered (recon.synth.render): a ray
     through each pixel centre and, at the pixels whose 8-neighbourhood crosses a silhouette or a depth jump
     in the view's ``true_depth`` or the mesh's own, the mean of :data:`SUPERSAMPLE` x :data:`SUPERSAMPLE`
     rays. A ray that misses the mesh shows the scene's background, unless what it shows beyond the model is
     unknown (:meth:`TrueScene.backdrop_unknown`: a masked scene's model holds its object alone, not the room
-    around it); then it is left out of its pixel's mean. Image (H, W, 3; float 0-255) and the
-    pixel centres that hit the mesh. One ray per pixel against photos anti-aliased at their silhouettes
+    around it); then it is left out of its pixel's mean. Image (H, W, 3; float 0-255), the pixel centres that
+    hit the mesh, and where along their rays (camera z; inf on a miss). One ray per pixel against photos anti-aliased at their silhouettes
     costs even a perfect model: the true scene rendered so scores 34.8 dB in zoo turntable_black's held-out
     views, against 41.7 rendered as the photos were (their JPEG alone)."""
     from recon.eval.texture import first_hits, render_rays
@@ -277,8 +276,8 @@ def render_as_photographed(mesh, rays: Rays, true_depth: np.ndarray, truth: True
     height, width = true_depth.shape
     origins, directions = _pixel_grid(rays, width, height)
     image, mask = render_rays(mesh, origins, directions)
-    depth = np.where(mask, first_hits(mesh, origins, directions), 0.0)
-    rows, cols = np.nonzero(edge_pixels(true_depth > 0, true_depth) | edge_pixels(mask, depth))
+    hits = first_hits(mesh, origins, directions)
+    rows, cols = np.nonzero(edge_pixels(true_depth > 0, true_depth) | edge_pixels(mask, np.where(mask, hits, 0.0)))
     offsets = (np.arange(SUPERSAMPLE) + 0.5) / SUPERSAMPLE
     dy, dx = np.meshgrid(offsets, offsets, indexing="ij")
     sub_origins, sub_directions = rays(np.stack([cols[:, None] + dx.ravel(), rows[:, None] + dy.ravel()],
@@ -293,7 +292,7 @@ def render_as_photographed(mesh, rays: Rays, true_depth: np.ndarray, truth: True
     keep = count > 0
     total = np.einsum("pk,pkc->pc", shown, colour.reshape(len(rows), -1, 3))
     image[rows[keep], cols[keep]] = total[keep] / count[keep, None]
-    return image, mask
+    return image, mask, hits
 
 
 @dataclass(frozen=True)

@@ -251,7 +251,7 @@ def test_a_perfect_model_rendered_as_the_held_out_photos_were_matches_them_at_it
         mesh = trimesh.Trimesh(card.vertices, card.faces, process=False,
                                vertex_colors=np.tile([*truth[30, 40], 255], (4, 1)).astype(np.uint8))
         card_pixels = Renderer(assemble([card]), background).render(cam)[1] > 0
-        image, mask = quality_bench.render_as_photographed(mesh, rays, depth, true_scene)
+        image, mask, _ = quality_bench.render_as_photographed(mesh, rays, depth, true_scene)
         point, point_mask = render_rays(mesh, *quality_bench._pixel_grid(rays, 80, 60))
         assert np.array_equal(mask, point_mask)
         if len(parts) == 1:
