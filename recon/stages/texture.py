@@ -35,7 +35,7 @@ def write_exports(textured, out, georeference: dict | None = None) -> dict:
 @register
 class Texture(Stage):
     name = "texture"
-    version = 7
+    version = 8
     Config = TextureConfig
     requires = (PreparedPhotos, SparseModel, DenseScene, SurfaceMesh)
     produces = TexturedModel

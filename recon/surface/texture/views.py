@@ -6,9 +6,14 @@ three corners (pulled 20% towards the centroid) land on pixels whose depth is th
 few pixels of a nearer surface (an occluding silhouette) keeps only a tenth of its quality in that view:
 a geometry error of a pixel there would paint the occluder onto it.
 
-The quality of a view is the projected area in pixels times the mean image gradient magnitude at those
-four points: close, frontal and sharp views score high (after Waechter et al. 2014, "Let There Be Color!",
-gradient magnitude integral).
+The quality of a view is the projected area in pixels times its sharpness at the face: close, frontal and
+sharp views score high. Waechter et al. (2014, "Let There Be Color!") take the gradient magnitude integral,
+the area times the mean image gradient at the face; here the gradient (the mean at those four points) counts
+relative to its median over the views that see the face, capped at 1. So a view blurred by motion or focus
+still scores lower than the others, but no view scores higher because its photo shows more texture at the
+face than the others do: where the mesh lies off the true surface, that is a view whose projection lands on
+something else (say a textured table beside a dark object), and the plain integral chose it. On the zoo:
+docs/DECISIONS.md.
 """
 
 from __future__ import annotations
@@ -60,7 +65,8 @@ def view_quality(vertices: np.ndarray, faces: np.ndarray, images: Sequence[np.nd
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-30)
     targets = np.concatenate([centroid[:, None], (1 - _PULL) * tri + _PULL * centroid[:, None]], axis=1)
     kernel = np.ones((2 * _OCCLUDER_RADIUS + 1,) * 2, np.uint8)
-    quality = np.zeros((len(faces), len(cameras)), np.float32)
+    quality = np.zeros((len(faces), len(cameras)), np.float32)  # area, a tenth next to a silhouette
+    sharpness = np.full((len(faces), len(cameras)), np.nan, np.float32)  # mean gradient where seen
     for j, (image, cam, depth) in enumerate(zip(images, cameras, depths, strict=True)):
         h, w = image.shape[:2]
         uv, z = project(cam.K, cam.R, cam.t, vertices)
@@ -82,10 +88,24 @@ def view_quality(vertices: np.ndarray, faces: np.ndarray, images: Sequence[np.nd
         e1, e2 = fuv[cand, 1] - fuv[cand, 0], fuv[cand, 2] - fuv[cand, 0]
         area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
         grad = sample_bilinear(gradient_magnitude(image), puv[:, 0], puv[:, 1]).reshape(-1, 4).mean(axis=1)
-        q = area * (grad + _GRADIENT_FLOOR) * np.where(clear, 1.0, _NEAR_SILHOUETTE)
-        quality[cand[seen], j] = q[seen]
+        quality[cand[seen], j] = (area * np.where(clear, 1.0, _NEAR_SILHOUETTE))[seen]
+        sharpness[cand[seen], j] = grad[seen] + _GRADIENT_FLOOR
         log.debug("view %d sees %d faces, %d next to a silhouette", j, seen.sum(), (seen & ~clear).sum())
+    quality *= relative_sharpness(sharpness)
     return quality
+
+
+def relative_sharpness(sharpness: np.ndarray, block: int = 1 << 16) -> np.ndarray:
+    """Each view's sharpness at each face (F, N; NaN where it does not see the face) over its median across
+    the views that do, capped at 1 (module doc); 0 where unseen. Taken ``block`` faces at a time, so that
+    the median's working copies stay small beside the (F, N) arrays."""
+    out = np.zeros(sharpness.shape, np.float32)
+    for first in range(0, len(sharpness), block):
+        rows = sharpness[first:first + block]
+        seen = np.isfinite(rows)
+        median = np.nanmedian(np.where(seen.any(axis=1, keepdims=True), rows, 1.0), axis=1, keepdims=True)
+        out[first:first + block] = np.where(seen, np.minimum(rows / median, 1.0), 0.0)
+    return out
 
 
 def unobstructed(points: np.ndarray, cam, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
