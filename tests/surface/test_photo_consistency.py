@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-import pytest
 from surface_scene import with_gains
 
 from recon.eval.texture import masked_psnr, render
@@ -43,11 +42,6 @@ def test_no_majority_or_too_few_views_drops_nothing():
     face, view, colours = _entries(40, 2)
     colours[view == 0] = [20.0, 200.0, 20.0]
     assert not inconsistent(face, view, colours, 40, 2).any()
-
-
-@pytest.fixture(scope="module")
-def mesh(small_scene):
-    return small_scene.gt_mesh.subdivide_to_size(0.1)
 
 
 def _sees(point: np.ndarray, cam, depth: np.ndarray) -> bool:

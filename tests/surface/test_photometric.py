@@ -72,11 +72,6 @@ def vignetted(images: list[np.ndarray], loss: float = 0.4) -> list[np.ndarray]:
     return out
 
 
-@pytest.fixture(scope="module")
-def mesh(small_scene):
-    return small_scene.gt_mesh.subdivide_to_size(0.1)
-
-
 def test_calibrated_photos_texture_closer_to_the_truth(small_scene, mesh):
     photos = vignetted(with_gains(small_scene.images))
     gt, cam = small_scene.holdout_images[0], small_scene.holdout_cameras[0]

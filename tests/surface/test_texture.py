@@ -12,11 +12,6 @@ from recon.surface.raycast import render_ids, scene_of
 from recon.surface.texture import texture_mesh
 
 
-@pytest.fixture(scope="module")
-def mesh(small_scene):
-    return small_scene.gt_mesh.subdivide_to_size(0.1)
-
-
 def _holdout_psnr(scene, textured, vertex_colors=False):
     out = []
     for cam, gt in zip(scene.holdout_cameras, scene.holdout_images, strict=True):

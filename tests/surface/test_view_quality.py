@@ -2,16 +2,10 @@
 
 import cv2
 import numpy as np
-import pytest
 
 import recon.surface.texture.views as views
 from recon.surface.raycast import render_ids, scene_of
 from recon.surface.texture.views import relative_sharpness, view_quality
-
-
-@pytest.fixture(scope="module")
-def mesh(small_scene):
-    return small_scene.gt_mesh.subdivide_to_size(0.1)
 
 
 def _quality(mesh, images, cameras):

@@ -66,7 +66,7 @@ def view_quality(vertices: np.ndarray, faces: np.ndarray, images: Sequence[np.nd
     targets = np.concatenate([centroid[:, None], (1 - _PULL) * tri + _PULL * centroid[:, None]], axis=1)
     kernel = np.ones((2 * _OCCLUDER_RADIUS + 1,) * 2, np.uint8)
     quality = np.zeros((len(faces), len(cameras)), np.float32)  # area, a tenth next to a silhouette
-    sharpness = np.full((len(faces), len(cameras)), np.nan, np.float32)  # mean gradient where seen
+    sharpness = np.full((len(faces), len(cameras)), np.nan, np.float32)  # mean gradient + floor; NaN: unseen
     for j, (image, cam, depth) in enumerate(zip(images, cameras, depths, strict=True)):
         h, w = image.shape[:2]
         uv, z = project(cam.K, cam.R, cam.t, vertices)
