@@ -4,21 +4,29 @@ COLMAP's default maximum image size (3200 px) with its default first octave (-1,
 upsampled 2x inside SIFT) spends most of its time on the finest scales. recon downsizes large photos
 with area interpolation (anti-aliased) to ``max_image_size``, upsizes small ones to ``min_image_size``
 (a gentler version of the 2x upsampling, which small photos need for enough precise features), runs
-SIFT from octave 0, and scales keypoints back to the photo's pixel frame. On temple_ring (640 px),
-upsizing to 800 px at octave 0 gives pose AUC@5 80.5 (960 px: 82.0; COLMAP's octave -1: 81.9) for
-0.4x the CPU time of octave -1.
+SIFT from octave 0, and scales keypoints back to the photo's pixel frame. On temple_ring (640x480),
+upsizing to 800 px at octave 0 gave pose AUC@5 80.5 (960 px: 82.0; COLMAP's octave -1: 81.9) for 0.4x
+the CPU time of octave -1, and 800 px was the default until the rest of the sparse pipeline had caught up.
+With today's pipeline 1024 px pays (docs/DECISIONS.md, session 59): temple_ring AUC@1/3/5 52.9 / 84.0 /
+90.4 -> 73.9 / 91.2 / 94.7 in less time (its sparse run 26 -> 20 s: the mapper converges sooner), and
+the zoo's cameras come out closer to the truth on 15 of its 17 scenes (median relative rotation error
+over all pairs: glossy .137 -> .056 degrees, clutter .041 -> .016). Not 1280: the zoo's walkaround then
+broke (AUC@5 25), its photos matching the same window pictures on other facades.
 
 A photo that yields fewer than ``min_num_features`` is extracted again, more sensitively: from
 octave -1 (COLMAP's default), then with the peak threshold lowered by a third, twice (as OpenSfM's
 ``feature_min_frames`` lowers its threshold). Low-contrast texture (marble, plaster, matte paint)
 gives few features at octave 0, and a model built on a few hundred points places its cameras
-poorly. Measured (pose AUC@5 against the truth): the zoo's turntable_black (a marble pedestal in
-black, 126-232 features per photo) 77.1 -> 94.2; dino_sparse_ring (136-244) registered 6 of 16
+poorly. Measured at 800 px (pose AUC@5 against the truth): the zoo's turntable_black (a marble pedestal
+in black, 126-232 features per photo) 77.1 -> 94.2; dino_sparse_ring (136-244) registered 6 of 16
 photos (AUC@5 10.6), now 16 of 16 (37.1). Photos with enough features are extracted once, as before.
-Why 500 and not more: at 1000, temple_ring (561-1,000 per photo) rose 90.3 -> 96.0 but took 1.6x
-as long, and the zoo's walkaround broke (94.8 -> 24.9): its photos with the most sky (578-967) then
-matched the same window pictures on other facades. A third step lower (threshold 0.002) cost
-dino_sparse_ring 13 of its 16 photos: noise, not texture, is what such a threshold finds.
+The threshold grows with the area SIFT sees: 500 at 800 px, 800 at 1024 px. At 1024 px with 500,
+turntable_black's photos (503-600 features) were extracted once and its cameras came out worse
+(relative rotation error .127 -> .246 degrees; with 800, .143). Why not more: at 1000 (800 px),
+temple_ring rose but took 1.6x as long, and walkaround broke (94.8 -> 24.9): its photos with the most
+sky (578-967) then matched the same window pictures on other facades; at 1024 px its fewest give 853.
+A third step lower (threshold 0.002) cost dino_sparse_ring 13 of its 16 photos: noise, not texture, is
+what such a threshold finds.
 """
 
 from __future__ import annotations
@@ -61,8 +69,9 @@ class FeaturesConfig:
     type: str = opt("sift", "feature type; only 'sift' runs on the CPU pycolmap wheel")
     max_image_size: int = opt(1600, "longest image side for extraction (photos are downsized, anti-aliased)", gt=0)
     max_num_features: int = opt(8192, "keep at most this many features per photo", gt=0)
-    min_image_size: int = opt(800, "smaller photos are upsized (bicubic) to this longest side for extraction",
-                              ge=0)
+    min_image_size: int = opt(1024, "smaller photos are upsized (bicubic) to this longest side for extraction: "
+                                    "a 640x480 photo's keypoints then sit finer and its cameras come out more "
+                                    "accurate (docs/DECISIONS.md, session 59)", ge=0)
     first_octave: int = opt(0, "SIFT first octave: -1 upsamples 2x inside SIFT (COLMAP's default; slow)",
                             ge=-1, le=3)
     peak_threshold: float = opt(0.0066667, "SIFT peak (contrast) threshold; lower = more features in "
@@ -72,7 +81,7 @@ class FeaturesConfig:
     domain_size_pooling: bool = opt(False, "DSP-SIFT descriptors (slower, more robust)")
     upright: bool = opt(False, "skip orientation estimation (photos all upright)")
     darkness_adaptivity: bool = opt(False, "adapt the threshold in dark images")
-    min_num_features: int = opt(500, "a photo with fewer features is extracted again, more sensitively: from "
+    min_num_features: int = opt(800, "a photo with fewer features is extracted again, more sensitively: from "
                                      "SIFT's octave -1, then with the peak threshold lowered by a third, twice; "
                                      "for low-contrast surfaces. 0 = never", ge=0)
     masks: bool = opt(False, "drop keypoints on masked pixels (preprocess.mask_dir), as COLMAP does: for turntable "

@@ -29,7 +29,7 @@ def test_spatial_matching_registers_every_view(small_scene, tmp_path):
     geotag_photos(photos, {n: c.center for n, c in cameras.items()}, 0.05, 0, ORIGIN)  # the scene's units taken for metres: a 7 m orbit
     ws = tmp_path / "ws"
     matching = {"method": "spatial", "spatial_neighbors": 4, "spatial_retrieval": 1, "neighbors": 4}
-    features = {"min_image_size": 640}  # SIFT on 640 px, not 800: a shorter test, matches to spare
+    features = {"min_image_size": 640}  # SIFT on 640 px, not 1024: a shorter test, matches to spare
     result = recon.run(SPARSE_TEST, images=str(photos), workspace=str(ws), matching=matching, features=features)
     summary = result.summaries["matching"]
     n = len(scene.cameras())
