@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -168,7 +169,7 @@ def test_two_disjoint_scenes_give_two_models_and_the_largest_is_exported(two_sce
 @pytest.mark.parametrize("kind", ["noise", "far_apart"])
 def test_a_set_sfm_cannot_reconstruct_says_why_and_keeps_the_matches(kind, tmp_path, small_scene):
     """Noise photos share no verified match: "too few matches". Three views 45 degrees apart match
-    (16-30 inliers a pair) but no pair can start a model: "no initial pair". The matches are kept:
+    (under 100 inliers a pair) but no pair can start a model: "no initial pair". The matches are kept:
     a run with another sfm option runs sfm only."""
     photos = tmp_path / "photos"
     photos.mkdir()
@@ -186,7 +187,7 @@ def test_a_set_sfm_cannot_reconstruct_says_why_and_keeps_the_matches(kind, tmp_p
     first = cli(*args)
     message = assert_one_line_error(first, "sfm: no model could be built: the incremental mapper built no model; ")
     assert why in message and ("the global mapper built no model" in message if kind == "noise" else
-                               "the global mapper's model has 4 points (under 100: unsound)" in message)
+                               re.search(r"the global mapper's model has \d+ points \(under 100: unsound\)", message))
     assert len(complete_outputs(ws, "matching")) == 1 and complete_outputs(ws, "sfm") == []
     again = cli(*args, "-o", "sfm.min_num_matches=8")
     assert "features: running" not in again.stderr and "matching: running" not in again.stderr

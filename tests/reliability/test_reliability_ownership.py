@@ -21,6 +21,7 @@ import pytest
 from reliability_checks import SPARSE, assert_one_line_error, cli
 
 from recon.sparse.photos import list_photos
+from recon.workspace import SMALL_FILE
 
 
 def tree_digest(folder: Path) -> dict[str, str]:
@@ -204,12 +205,15 @@ def test_home_and_variables_in_config_paths_are_expanded(small_scene, tmp_path, 
 
 
 def test_a_corrupted_model_file_is_caught_even_with_its_size_and_mtime(copy_workspace):
+    """A file up to SMALL_FILE is hashed at every check (a larger one, such as the small scene's images.bin,
+    only when its mtime moved or with --verify)."""
     keys = json.loads((copy_workspace / ".recon" / "state.json").read_text())
-    images_bin = copy_workspace / ".recon" / "cache" / "sfm" / keys["sfm"][:16] / "sparse" / "0" / "images.bin"
-    st = images_bin.stat()
-    data = bytearray(images_bin.read_bytes())
+    cameras_bin = copy_workspace / ".recon" / "cache" / "sfm" / keys["sfm"][:16] / "sparse" / "0" / "cameras.bin"
+    st = cameras_bin.stat()
+    assert st.st_size <= SMALL_FILE
+    data = bytearray(cameras_bin.read_bytes())
     data[len(data) // 2] ^= 0xFF
-    images_bin.write_bytes(bytes(data))
-    os.utime(images_bin, ns=(st.st_atime_ns, st.st_mtime_ns))
+    cameras_bin.write_bytes(bytes(data))
+    os.utime(cameras_bin, ns=(st.st_atime_ns, st.st_mtime_ns))
     rows = {line.split()[0]: line for line in cli("status", copy_workspace).stdout.splitlines()}
-    assert "stale" in rows["sfm"] and "sparse/0/images.bin changed since it was written (content)" in rows["sfm"]
+    assert "stale" in rows["sfm"] and "sparse/0/cameras.bin changed since it was written (content)" in rows["sfm"]
