@@ -307,14 +307,16 @@ MIN_GAIN = 0.002
 GAIN_OBSERVATIONS = 25.0
 
 
-def final_bundle_adjustment(rec, cfg, initial: dict[int, np.ndarray], exif_focal: frozenset[int] = frozenset()):
+def final_bundle_adjustment(rec, cfg, initial: dict[int, np.ndarray], exif_focal: frozenset[int] = frozenset(),
+                            drop_loose: bool = True):
     """The finished model adjusted once more (:func:`_adjust_and_choose`), then rid of the observations
     it leaves more than the mapper's outlier threshold off (and of points left with fewer than two), as
     COLMAP's mapper does after each global BA. Where a refinement is refused, the model adjusted without
     it can leave observations far off that only the refinement explained: on the test suite's 16-view
     scene, with its distortion refused, 4 such observations took one photo's mean error to 4.3 px and the
-    model's to 0.51 px (0.17 px without them)."""
-    rec = _adjust_and_choose(rec, cfg, initial, exif_focal)
+    model's to 0.51 px (0.17 px without them). ``drop_loose``: whether its loose points go
+    (:func:`drop_loose_points`)."""
+    rec = _adjust_and_choose(rec, cfg, initial, exif_focal, drop_loose)
     drop_outlier_observations(rec)
     return rec
 
@@ -366,9 +368,10 @@ def outlier_px() -> float:
     return pycolmap.IncrementalMapperOptions().filter_max_reproj_error
 
 
-def _adjust_and_choose(rec, cfg, initial: dict[int, np.ndarray], exif_focal: frozenset[int] = frozenset()):
+def _adjust_and_choose(rec, cfg, initial: dict[int, np.ndarray], exif_focal: frozenset[int] = frozenset(),
+                       drop_loose: bool = True):
     """One last global BA over the finished model, with a robust loss, and again without its observations
-    over the mapper's outlier threshold and its loose points (:func:`drop_loose_points`). Then two
+    over the mapper's outlier threshold and (``drop_loose``) its loose points (:func:`drop_loose_points`). Then two
     refinements that the photos may not constrain, each kept only where it explains the observations
     better (:func:`_explains_better`):
 
@@ -389,7 +392,7 @@ def _adjust_and_choose(rec, cfg, initial: dict[int, np.ndarray], exif_focal: fro
 
     _bundle_adjust(rec, cfg, cfg.refine_principal_point)
     drop_outlier_observations(rec)  # a wild observation goes, not its point with it
-    loose = drop_loose_points(rec)
+    loose = drop_loose_points(rec) if drop_loose else 0
     if loose:
         log.info("final BA: %d points whose reprojection error exceeds %g times the median dropped; adjusted "
                  "again", loose, LOOSE_POINT_FACTOR)
