@@ -35,6 +35,9 @@ features from the features stage, matched and triangulated so, gave worse camera
 degrees), and what larger photos gain above their features' size is not measured. Only models of
 perspective cameras, one camera per frame, are refined (fisheye, 360 and rig models are left as the
 mapper made them), and only models mapped from scratch (a continued model keeps its earlier photos' poses).
+The refined features do not leave masked pixels out (``features.masks``): a background that does not move
+with a turntable's object matches at the same pixels in every photo, which mostly lie off the model's
+epipolar geometry (not measured).
 """
 
 from __future__ import annotations
