@@ -28,7 +28,7 @@ import numpy as np
 
 from recon.geometry.transforms import align_similarity
 from recon.sparse import mapping
-from recon.sparse.database import cameras_with_exif_focal, private_copy, read_only, stored_camera_params
+from recon.sparse.database import private_copy, read_only
 
 
 def continue_model(database: Path, images: Path, cfg, seed: int, start) -> mapping.Mapping:
@@ -48,8 +48,7 @@ def continue_model(database: Path, images: Path, cfg, seed: int, start) -> mappi
     previous = {image.name for image in start.images.values()}
     ordered = sorted(models.values(), key=lambda r: (-r.num_reg_images(), -r.num_points3D()))
     if cfg.final_ba_iterations:
-        with read_only(database) as db:
-            initial, exif = stored_camera_params(db), cameras_with_exif_focal(db)
+        initial, exif = mapping.camera_start(database)
         ordered = [rec if previous & {i.name for i in rec.images.values()} else
                    mapping.final_bundle_adjustment(rec, cfg, initial, exif) for rec in ordered]
     attempt = mapping.Attempt.of("incremental", ordered)

@@ -162,8 +162,7 @@ def _map(mapper: str, database: Path, images: Path, cfg, seed: int, start=None,
             taken_out |= dropped
     ordered = sorted(models.values(), key=lambda r: (-r.num_reg_images(), -r.num_points3D()))
     if cfg.final_ba_iterations:
-        with read_only(database) as db:
-            initial, exif = stored_camera_params(db), cameras_with_exif_focal(db)
+        initial, exif = camera_start(database)
         ordered = [final_bundle_adjustment(rec, cfg, initial, exif) for rec in ordered]
     return ordered
 
@@ -305,6 +304,13 @@ def _threads(cfg) -> int:
 #: focal length to 568.6 for a true 576, and fused F@0.2 % was .778 against .821 without it)
 MIN_GAIN = 0.002
 GAIN_OBSERVATIONS = 25.0
+
+
+def camera_start(database: Path) -> tuple[dict[int, np.ndarray], frozenset[int]]:
+    """What :func:`final_bundle_adjustment` compares the cameras with: their starting parameters in
+    ``database`` (camera id -> parameters) and the ids of those whose focal length came from EXIF."""
+    with read_only(database) as db:
+        return stored_camera_params(db), cameras_with_exif_focal(db)
 
 
 def final_bundle_adjustment(rec, cfg, initial: dict[int, np.ndarray], exif_focal: frozenset[int] = frozenset(),

@@ -123,9 +123,17 @@ def agreement(rec, a: int, b: int, pixels_a: np.ndarray, pixels_b: np.ndarray) -
     """The share of the inlier matches of images ``a`` and ``b`` (their pixels: M x 2 each, row for row)
     within :data:`MAX_EPIPOLAR_PX` of the epipolar geometry of their poses in ``rec``; None where the two
     centres coincide (no epipolar geometry)."""
+    distances = epipolar_px(rec, a, b, pixels_a, pixels_b)
+    return None if distances is None else float(np.mean(distances < MAX_EPIPOLAR_PX))
+
+
+def epipolar_px(rec, a: int, b: int, pixels_a: np.ndarray, pixels_b: np.ndarray) -> np.ndarray | None:
+    """Sampson distance (px at the two cameras' mean focal length) of each correspondence (``pixels_a``
+    (M, 2) in image ``a``, ``pixels_b`` in ``b``, row for row) to the epipolar geometry of their poses in
+    ``rec``; None where the two centres coincide (no epipolar geometry)."""
     image_a, image_b = rec.image(a), rec.image(b)
     cam_a, cam_b = rec.camera(image_a.camera_id), rec.camera(image_b.camera_id)
-    rays = [np.c_[cam.cam_from_img(pixels), np.ones(len(pixels))]
+    rays = [np.c_[cam.cam_from_img(np.asarray(pixels, np.float64)), np.ones(len(pixels))]
             for cam, pixels in ((cam_a, pixels_a), (cam_b, pixels_b))]
     pose_a, pose_b = image_a.cam_from_world(), image_b.cam_from_world()
     rotation = pose_b.rotation.matrix() @ pose_a.rotation.matrix().T
@@ -138,7 +146,7 @@ def agreement(rec, a: int, b: int, pixels_a: np.ndarray, pixels_b: np.ndarray) -
     sampson = np.sum(rays[1] * line_b, axis=1) ** 2 / (line_b[:, 0] ** 2 + line_b[:, 1] ** 2 +
                                                         line_a[:, 0] ** 2 + line_a[:, 1] ** 2)
     focal = 0.5 * (cam_a.mean_focal_length() + cam_b.mean_focal_length())
-    return float(np.mean(np.sqrt(sampson) * focal < MAX_EPIPOLAR_PX))
+    return np.sqrt(sampson) * focal
 
 
 def take_out_contradicted(rec, database: Path) -> dict[str, str]:

@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from recon.sparse.database import sift_descriptors
+from recon.sparse.pose_check import epipolar_px
 from recon.sparse.sift_match import sift_matches
 
 log = logging.getLogger(__name__)
@@ -92,24 +93,6 @@ def overlapping_pairs(rec, min_shared: int = MIN_SHARED_POINTS, partners: int = 
     return sorted({pair for pairs in ranked.values() for _, pair in sorted(pairs, reverse=True)[:partners]})
 
 
-def epipolar_px(rec, a: int, b: int, points_a: np.ndarray, points_b: np.ndarray) -> np.ndarray:
-    """Sampson distance (px at the two cameras' mean focal length) of each correspondence (pixels
-    ``points_a`` (N, 2) in image ``a``, ``points_b`` in ``b``) to the epipolar geometry of ``rec``'s poses."""
-    image_a, image_b = rec.image(a), rec.image(b)
-    camera_a, camera_b = rec.camera(image_a.camera_id), rec.camera(image_b.camera_id)
-    xa = np.column_stack([camera_a.cam_from_img(points_a.astype(np.float64)), np.ones(len(points_a))])
-    xb = np.column_stack([camera_b.cam_from_img(points_b.astype(np.float64)), np.ones(len(points_b))])
-    relative = image_b.cam_from_world() * image_a.cam_from_world().inverse()
-    t = relative.translation
-    essential = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ relative.rotation.matrix()
-    ea = xa @ essential.T
-    eb = xb @ essential
-    residual = np.sum(xb * ea, axis=1)
-    norm = ea[:, 0] ** 2 + ea[:, 1] ** 2 + eb[:, 0] ** 2 + eb[:, 1] ** 2
-    focal = 0.5 * (camera_a.mean_focal_length() + camera_b.mean_focal_length())
-    return np.abs(residual) / np.sqrt(np.maximum(norm, 1e-30)) * focal
-
-
 def refine(rec, features: dict[int, tuple[np.ndarray, np.ndarray]], photos: Path, cfg,
            initial: dict[int, np.ndarray], exif_focal: frozenset[int]):
     """``rec`` with its points triangulated again from ``features`` (image id -> keypoints in the photo's
@@ -138,8 +121,11 @@ def refine(rec, features: dict[int, tuple[np.ndarray, np.ndarray]], photos: Path
                 matches = sift_matches(features[a][1], features[b][1])
                 if not len(matches):
                     continue
-                good = epipolar_px(rec, a, b, features[a][0][matches[:, 0], :2],
-                                   features[b][0][matches[:, 1], :2]) <= MAX_EPIPOLAR_PX
+                distances = epipolar_px(rec, a, b, features[a][0][matches[:, 0], :2],
+                                        features[b][0][matches[:, 1], :2])
+                if distances is None:  # the same centre: no epipolar geometry to check the matches against
+                    continue
+                good = distances <= MAX_EPIPOLAR_PX
                 found += len(matches)
                 kept += int(good.sum())
                 db.write_matches(a, b, matches.astype(np.uint32))
@@ -167,12 +153,4 @@ def refine(rec, features: dict[int, tuple[np.ndarray, np.ndarray]], photos: Path
              time.perf_counter() - start, refined.compute_mean_reprojection_error(),
              rec.compute_mean_reprojection_error())
     return refined
-
-
-def camera_start(database: Path) -> tuple[dict[int, np.ndarray], frozenset[int]]:
-    """The cameras' starting parameters and those with an EXIF focal length, as the mapper read them."""
-    from recon.sparse.database import cameras_with_exif_focal, read_only, stored_camera_params
-
-    with read_only(database) as db:
-        return stored_camera_params(db), cameras_with_exif_focal(db)
 

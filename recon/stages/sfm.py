@@ -249,7 +249,7 @@ def _refined(ctx: StageContext, cfg: SfmConfig, rec, images: Path, database: Pat
         tasks = [(images / rec.image(i).name, Path(scratch) / f"{i}.npz", settings, None) for i in ids]
         ctx.map(extract_photo, tasks, desc="sfm: refinement features")
         features = {i: load_features(task[1]) for i, task in zip(ids, tasks)}
-    return refine.refine(rec, features, images, cfg, *refine.camera_start(database))
+    return refine.refine(rec, features, images, cfg, *mapping.camera_start(database))
 
 
 def _keep_frame(ctx: StageContext, models: list, previous) -> dict | None:

@@ -10,14 +10,9 @@ import pytest
 
 import recon
 from recon.products import Published
-from recon.sparse.refine import (
-    MIN_SHARED_POINTS,
-    camera_start,
-    epipolar_px,
-    overlapping_pairs,
-    refinable,
-    refine,
-)
+from recon.sparse.mapping import camera_start
+from recon.sparse.pose_check import epipolar_px
+from recon.sparse.refine import MIN_SHARED_POINTS, overlapping_pairs, refinable, refine
 from recon.stages.sfm import SfmConfig
 
 SPARSE_TEST = Path(__file__).resolve().parents[1] / "sparse_test.yaml"
@@ -50,6 +45,7 @@ def test_epipolar_distance_is_zero_on_the_geometry_and_measures_pixels_off_it():
     assert np.max(epipolar_px(rec, 1, 2, a, b + 3 * along)) < 1e-6
     off = epipolar_px(rec, 1, 2, a, b + 2 * across)
     assert np.allclose(off, np.sqrt(2), atol=0.01)
+    assert epipolar_px(rec, 1, 1, a, a) is None  # one centre: no epipolar geometry
 
 
 def _model(workspace):
