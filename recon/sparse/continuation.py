@@ -21,30 +21,19 @@ both registered (the identity, when the mapper kept them fixed), so every output
 
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from recon.geometry.transforms import align_similarity
 from recon.sparse import mapping
-from recon.sparse.database import private_copy, read_only
+from recon.sparse.database import read_only
 
 
 def continue_model(database: Path, images: Path, cfg, seed: int, start) -> mapping.Mapping:
     """The models of the incremental mapper continuing ``start`` (:func:`start_model`) with the
     database's other photos, the previous photos' poses fixed (module doc); largest first."""
-    import pycolmap
-
-    opts = mapping.incremental_options(cfg, seed)
-    opts.fix_existing_frames = True
-    pycolmap.set_random_seed(seed)
-    with tempfile.TemporaryDirectory(prefix="recon-sfm-") as scratch, private_copy(database) as copy:
-        given, made = Path(scratch) / "start", Path(scratch) / "models"
-        given.mkdir()
-        made.mkdir()
-        start.write(str(given))
-        models = pycolmap.incremental_mapping(str(copy), str(images), str(made), opts, input_path=str(given))
+    models = mapping.continued(start, database, images, cfg, seed, cfg.multiple_models)
     previous = {image.name for image in start.images.values()}
     ordered = sorted(models.values(), key=lambda r: (-r.num_reg_images(), -r.num_points3D()))
     if cfg.final_ba_iterations:

@@ -19,6 +19,10 @@ dino_sparse_ring). No right pose was flagged, and the median pair agrees on all 
 had photos flagged, and every flagged photo was wrong: view_005 above, and four photos of turntable_black
 (12 photos at 480x360, the global mapper's model) that were 75-170 degrees off.
 
+A photo taken out is then given one more chance: the incremental mapper, continuing the model without it,
+registers it again through its verified pairs (:func:`recon.sparse.mapping._registered_again`); a wrong
+pose is not always the photo's own fault (one of the mapper's initial pair can keep one).
+
 Only perspective cameras are checked (and paired): the distance is measured on the image plane, which a
 fisheye's or a 360 camera's rays behind it do not reach.
 """

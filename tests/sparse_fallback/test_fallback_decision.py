@@ -193,3 +193,41 @@ def test_a_model_that_only_false_pairs_contradict_is_kept(monkeypatch, tmp_path)
 
     models, false_pairs = _global_mapping(monkeypatch, database, global_mapping)
     assert models[0] is first and len(runs) == 2 and false_pairs == []
+
+
+def test_true_pairs_are_put_back_until_the_model_stops_improving(monkeypatch, tmp_path):
+    """The walk at 640x480 with ``seed`` 1 or 4: false pairs bent the first model so far that it contradicted
+    seven true pairs, among them two facades' corner pairs. Only with all seven put back is the model right
+    (the sixth and seventh strongest: the old limit of six runs kept a bent one), and the search stops
+    :data:`PATIENCE` runs after its best instead of putting back every false pair too."""
+    import sqlite3
+
+    import pycolmap
+
+    import recon.sparse.mapping as mapping
+
+    half = pycolmap.image_pair_to_pair_id(20, 21)  # the strongest, half its matches wrong in every model
+    true = [pycolmap.image_pair_to_pair_id(k, k + 1) for k in range(1, 8)]  # strengths 100 .. 40
+    false = [pycolmap.image_pair_to_pair_id(k, k + 15) for k in range(1, 9)]  # 20 .. 13
+    strength = {half: 110} | dict(zip(true, range(100, 30, -10))) | dict(zip(false, range(20, 12, -1)))
+    database = _pairs_database(tmp_path, list(strength))
+    bent = _Mapped(29, {p: (n, 0.1) for p, n in strength.items()})
+    runs = []
+
+    def global_mapping(path, images, out, opts):
+        with sqlite3.connect(path) as db:
+            given = {p for p, in db.execute("SELECT pair_id FROM two_view_geometries")}
+        runs.append(given)
+        missing = set(true) - given
+        if len(runs) == 1 or given & set(false):
+            return {0: bent}
+        if len(missing) > 3:
+            return {0: _Mapped(23, {})}
+        return {0: _Mapped(29, {p: (n, 0.0 if p in missing or p in false else 0.4 if p == half else 1.0)
+                                for p, n in strength.items()})}
+
+    models, false_pairs = _global_mapping(monkeypatch, database, global_mapping)
+    assert all(models[0].agreement[p][1] == 1.0 for p in true)
+    assert runs[9] == {half, *true}  # all left out, then put back one by one, strongest first
+    assert len(runs) == 10 + mapping.PATIENCE  # then each false pair put back bends it: four runs, no more
+    assert len(false_pairs) == len(false) and false_pairs[0] == "view_001.jpg / view_016.jpg (20 inliers, 10% agree)"

@@ -47,12 +47,11 @@ def test_default_options_register_the_walk_through_the_global_fallback(walkaroun
     assert fallback["mapper"] == "global" and report["mapper"]["used"] == "global"
     assert report["mapper"]["why"].startswith(f"the incremental mapper's largest model holds {incremental['registered']}")
     assert "warning" not in report
-    # two pairs matched across opposite facades through look-alike windows turned one facade 3 degrees
-    # (AUC@5 63.1); the global mapper ran again without them (recon.sparse.mapping._global_mapping)
-    false = report["mapper"]["false_pairs"]
-    assert len(false) == 2 and {f.split(" (")[0] for f in false} == {"view_009.jpg / view_025.jpg",
-                                                                      "view_008.jpg / view_023.jpg"}
-    poses = evaluate(ws, walkaround.root)["poses"]  # measured: AUC@5 92.8, centres 0.21 % of the scene off
+    # pairs matched across opposite facades through look-alike windows bend the global mapper's first
+    # model; it ran again without the pairs that model contradicts (recon.sparse.mapping._global_mapping),
+    # which the report lists. Measured: 27 contradicted, 24 left out in the model kept
+    assert report["mapper"]["false_pairs"]
+    poses = evaluate(ws, walkaround.root)["poses"]  # measured: AUC@5 94.8, centres 0.15 % of the scene off
     assert poses["auc@5"] > 75 and poses["median_center_error_rel"] < 0.01
     # each facade is tied to the next by a corner pair sharing 0-14 points: the model says so
     joins = report["weak_joins"]
@@ -88,3 +87,16 @@ def test_without_the_fallback_the_walk_splits_and_the_run_says_so(walkaround, tm
     assert "sfm.mapper: global" in report["warning"]
     log = (ws / ".recon" / "recon.log").read_text()
     assert f"sfm: only {registered} of {PHOTOS} photos" in log
+
+
+@pytest.mark.slow
+def test_a_match_set_whose_false_pairs_bend_the_global_model_far_is_mended(tmp_path):
+    """At 640x480 with ``seed`` 4 the verified pairs hold 14 false ones (look-alike windows on opposite
+    facades), and the global mapper's first model contradicted 25 pairs, 14 of them true: with 6 runs
+    of the search without contradicted pairs it kept a bent model (pose AUC@5 12.9); the right one came
+    with 9 of the strongest put back (recon.sparse.mapping._global_mapping; measured 95.9)."""
+    scene = render_zoo("walkaround", tmp_path / "scene", width=640, height=480)
+    ws = tmp_path / "ws"
+    recon.run(FULL_PIPELINE, images=str(scene.images_dir), workspace=str(ws), until="sfm", overrides=["seed=4"])
+    assert _report(ws)["mapper"]["used"] == "global"
+    assert evaluate(ws, scene.root)["poses"]["auc@5"] > 90
