@@ -143,8 +143,9 @@ def choose(incremental: Attempt, fallback: Attempt, photos: int) -> tuple[str, s
 def _map(mapper: str, database: Path, images: Path, cfg, seed: int, start=None,
          taken_out: dict[str, str] | None = None, false_pairs: list[str] | None = None) -> list:
     """The mapper's models, largest first, without the photos whose pose their strongest verified pairs
-    contradict (:mod:`recon.sparse.pose_check`; their names and why into ``taken_out``), each refined by
-    :func:`final_bundle_adjustment`. The global mapper's verified pairs left out as false go into
+    contradict (:mod:`recon.sparse.pose_check`) unless they register again soundly into the model without
+    them (:func:`_registered_again`; the names and why of those left out into ``taken_out``), each refined
+    by :func:`final_bundle_adjustment`. The global mapper's verified pairs left out as false go into
     ``false_pairs`` (:func:`_global_mapping`)."""
     import pycolmap
 
@@ -335,7 +336,7 @@ def incremental_options(cfg, seed: int):
     mapper.abs_pose_min_num_inliers = cfg.abs_pose_min_num_inliers
     mapper.ba_local_num_images = cfg.ba_local_images
     mapper.random_seed = seed
-    mapper.num_threads = _threads(cfg)
+    mapper.num_threads = colmap_threads(cfg)
     opts.triangulation.random_seed = seed
     return opts
 
@@ -346,11 +347,11 @@ def _common_options(opts, cfg, seed: int):
     opts.min_model_size = cfg.min_model_size
     opts.multiple_models = cfg.multiple_models
     opts.random_seed = seed
-    opts.num_threads = _threads(cfg)
+    opts.num_threads = colmap_threads(cfg)
     return opts
 
 
-def _threads(cfg) -> int:
+def colmap_threads(cfg) -> int:
     """COLMAP's thread count: all cores, or one where bit-identical re-runs are asked for (Ceres'
     multi-threaded sums, and so the incremental mapper's later decisions, depend on scheduling)."""
     return 1 if cfg.deterministic else -1
@@ -565,7 +566,7 @@ def ba_options(cfg, principal_point: bool):
     opts.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
     opts.ceres.solver_options.max_num_iterations = cfg.final_ba_iterations
     opts.ceres.solver_options.function_tolerance = 1e-6
-    opts.ceres.solver_options.num_threads = _threads(cfg)
+    opts.ceres.solver_options.num_threads = colmap_threads(cfg)
     return opts
 
 

@@ -100,7 +100,7 @@ def refine(rec, features: dict[int, tuple[np.ndarray, np.ndarray]], photos: Path
     ``initial`` and ``exif_focal`` as :func:`recon.sparse.mapping.final_bundle_adjustment` takes them."""
     import pycolmap
 
-    from recon.sparse.mapping import final_bundle_adjustment
+    from recon.sparse.mapping import colmap_threads, final_bundle_adjustment
 
     start = time.perf_counter()
     pairs = overlapping_pairs(rec)
@@ -138,7 +138,7 @@ def refine(rec, features: dict[int, tuple[np.ndarray, np.ndarray]], photos: Path
         out = Path(scratch) / "model"
         out.mkdir()
         options = pycolmap.IncrementalPipelineOptions()
-        options.num_threads = 1 if cfg.deterministic else -1
+        options.num_threads = colmap_threads(cfg)
         triangulated = pycolmap.triangulate_points(pycolmap.Reconstruction(rec), str(path), str(photos), str(out),
                                                    clear_points=True, options=options, refine_intrinsics=False)
     log.info("sfm: refinement: %d overlapping pairs, %d of %d finer matches on the model's epipolar geometry, "
